@@ -1,1 +1,148 @@
-fn main() {}
+//! `paddock`: the command-line front door of Paddock.
+
+mod demo;
+mod maps_generate;
+mod perf;
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "paddock",
+    version,
+    about = "Train, tune and evaluate F1TENTH race-car drivers in a fast deterministic simulator"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Measure the simulator's speed on one thread (agent-steps/s, LIDAR rays/s).
+    Perf(perf::PerfArgs),
+    /// Drive a demo episode with the pure-pursuit driver and print lap times.
+    Demo(demo::DemoArgs),
+    /// Shipped maps and the track generator.
+    Maps {
+        #[command(subcommand)]
+        command: MapsCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum MapsCommand {
+    /// List the shipped maps and the maps in any directories given.
+    List {
+        /// More directories of maps (F1TENTH racetracks layout: one directory per map).
+        dirs: Vec<PathBuf>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Generate a seeded race track (map YAML + PNG + centerline + raceline CSV).
+    Generate(maps_generate::GenerateArgs),
+}
+
+fn main() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Perf(args) => perf::run(&args),
+        Command::Demo(args) => demo::run(&args),
+        Command::Maps { command } => match command {
+            MapsCommand::List { dirs, json } => maps_list(&dirs, json),
+            MapsCommand::Generate(args) => maps_generate::run(&args),
+        },
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
+    use paddock_sim::track::{Circuit, DEFAULT_MAP, list_circuit_dirs, map_search_dirs};
+    let mut rows = Vec::new();
+    let shipped = map_search_dirs();
+    for (source, dirs) in [("shipped", shipped.as_slice()), ("given", extra)] {
+        for d in dirs {
+            if !d.is_dir() {
+                anyhow::bail!("not a directory of maps: {}", d.display());
+            }
+            for dir in list_circuit_dirs(d) {
+                let row = match Circuit::load(&dir) {
+                    Ok(c) => serde_json::json!({
+                        "name": c.name,
+                        "source": source,
+                        "path": dir.display().to_string(),
+                        "length_m": c.track.length(),
+                        "raceline": c.track.raceline().is_some(),
+                        "resolution": c.map.resolution(),
+                        "cells": [c.map.width(), c.map.height()],
+                        "default": source == "shipped" && c.name.eq_ignore_ascii_case(DEFAULT_MAP),
+                    }),
+                    Err(e) => serde_json::json!({
+                        "name": dir.file_name().map(|n| n.to_string_lossy().to_string()),
+                        "source": source,
+                        "path": dir.display().to_string(),
+                        "error": e.to_string(),
+                    }),
+                };
+                rows.push(row);
+            }
+        }
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+        return Ok(());
+    }
+    println!(
+        "{:<16} {:<8} {:>9} {:>9} {:>12}  path",
+        "name", "source", "length_m", "raceline", "cells"
+    );
+    for r in &rows {
+        if let Some(err) = r.get("error") {
+            println!(
+                "{:<16} {:<8} error: {}",
+                r["name"].as_str().unwrap_or("?"),
+                r["source"].as_str().unwrap_or("?"),
+                err.as_str().unwrap_or("?")
+            );
+            continue;
+        }
+        let name = format!(
+            "{}{}",
+            r["name"].as_str().unwrap_or("?"),
+            if r["default"].as_bool() == Some(true) {
+                " *"
+            } else {
+                ""
+            }
+        );
+        println!(
+            "{:<16} {:<8} {:>9.1} {:>9} {:>12}  {}",
+            name,
+            r["source"].as_str().unwrap_or("?"),
+            r["length_m"].as_f64().unwrap_or(0.0),
+            if r["raceline"].as_bool() == Some(true) {
+                "yes"
+            } else {
+                "no"
+            },
+            format!("{}x{}", r["cells"][0], r["cells"][1]),
+            r["path"].as_str().unwrap_or("?"),
+        );
+    }
+    println!("(* = the default map)");
+    Ok(())
+}

@@ -10,9 +10,39 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Rng {
     s: [u64; 4],
-    /// A second Box-Muller sample kept for the next call.
-    #[serde(default)]
-    spare_normal: Option<u64>,
+}
+
+/// Start of the tail and area of each layer of the 256-layer normal ziggurat.
+const ZIG_R: f64 = 3.654_152_885_361_009;
+const ZIG_V: f64 = 0.004_928_673_233_99;
+
+/// Layer edges `x[i]` (x[0] = V / f(R), x[1] = R, ..., x[256] = 0) and `f[i] = exp(-x²/2)`.
+struct Ziggurat {
+    x: [f64; 257],
+    f: [f64; 257],
+}
+
+/// The tables, computed once with `libm`, so every host gets the same bits.
+fn ziggurat() -> &'static Ziggurat {
+    static TABLES: std::sync::OnceLock<Ziggurat> = std::sync::OnceLock::new();
+    TABLES.get_or_init(|| {
+        let f = |x: f64| libm::exp(-0.5 * x * x);
+        let mut z = Ziggurat {
+            x: [0.0; 257],
+            f: [0.0; 257],
+        };
+        z.x[0] = ZIG_V / f(ZIG_R);
+        z.x[1] = ZIG_R;
+        for i in 2..256 {
+            let y = f(z.x[i - 1]) + ZIG_V / z.x[i - 1];
+            z.x[i] = libm::sqrt(-2.0 * libm::log(y));
+        }
+        z.x[256] = 0.0;
+        for i in 0..257 {
+            z.f[i] = f(z.x[i]);
+        }
+        z
+    })
 }
 
 #[inline]
@@ -34,10 +64,7 @@ impl Rng {
             splitmix64(&mut sm),
             splitmix64(&mut sm),
         ];
-        Self {
-            s,
-            spare_normal: None,
-        }
+        Self { s }
     }
 
     /// An independent generator for sub-stream `stream`, derived from this generator's
@@ -86,18 +113,33 @@ impl Rng {
         }
     }
 
-    /// Standard normal sample (Box-Muller, both outputs used).
+    /// Standard normal sample: the ziggurat method with 256 layers (Marsaglia and Tsang,
+    /// in the 64-bit form of Doornik), one `u64` for almost every sample.
     pub fn normal(&mut self) -> f64 {
-        if let Some(bits) = self.spare_normal.take() {
-            return f64::from_bits(bits);
+        let z = ziggurat();
+        loop {
+            let bits = self.next_u64();
+            let i = (bits & 0xff) as usize;
+            // top 53 bits: u uniform in [-1, 1)
+            let u = (bits >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0;
+            let x = u * z.x[i];
+            if x.abs() < z.x[i + 1] {
+                return x;
+            }
+            if i == 0 {
+                // the tail beyond R (Marsaglia's method)
+                loop {
+                    let a = -libm::log(1.0 - self.uniform()) / ZIG_R;
+                    let b = -libm::log(1.0 - self.uniform());
+                    if 2.0 * b >= a * a {
+                        return if u < 0.0 { -(ZIG_R + a) } else { ZIG_R + a };
+                    }
+                }
+            }
+            if z.f[i + 1] + (z.f[i] - z.f[i + 1]) * self.uniform() < libm::exp(-0.5 * x * x) {
+                return x;
+            }
         }
-        // u1 in (0, 1] so that ln(u1) is finite.
-        let u1 = 1.0 - self.uniform();
-        let u2 = self.uniform();
-        let r = libm::sqrt(-2.0 * libm::log(u1));
-        let (s, c) = libm::sincos(std::f64::consts::TAU * u2);
-        self.spare_normal = Some((r * s).to_bits());
-        r * c
     }
 
     /// Normal sample with mean `mean` and standard deviation `std`.
@@ -146,6 +188,44 @@ mod tests {
         let var = s2 / n as f64 - mean * mean;
         assert!(mean.abs() < 0.01, "mean {mean}");
         assert!((var - 1.0).abs() < 0.01, "var {var}");
+    }
+
+    #[test]
+    fn normal_distribution_shape() {
+        // Tail probabilities and central CDF values of N(0, 1) from 2 M samples.
+        let mut r = Rng::new(21);
+        let n = 2_000_000;
+        let (mut gt1, mut gt2, mut gt3, mut gt4, mut below_half) = (0, 0, 0, 0, 0);
+        for _ in 0..n {
+            let x = r.normal();
+            let a = x.abs();
+            gt1 += (a > 1.0) as u32;
+            gt2 += (a > 2.0) as u32;
+            gt3 += (a > 3.0) as u32;
+            gt4 += (a > 3.8) as u32;
+            below_half += (x < 0.5) as u32;
+        }
+        let p = |k: u32| k as f64 / n as f64;
+        assert!((p(gt1) - 0.317_310_5).abs() < 0.002, "{}", p(gt1));
+        assert!((p(gt2) - 0.045_500_3).abs() < 0.0008, "{}", p(gt2));
+        assert!((p(gt3) - 0.002_699_8).abs() < 0.0002, "{}", p(gt3));
+        // beyond R = 3.65: the tail branch (1.45e-4 expected)
+        assert!((p(gt4) - 0.000_144_7).abs() < 0.00005, "{}", p(gt4));
+        assert!(
+            (p(below_half) - 0.691_462_5).abs() < 0.002,
+            "{}",
+            p(below_half)
+        );
+    }
+
+    #[test]
+    fn ziggurat_layers_close() {
+        // The recursion must end at the top of the curve: the cap above the last edge
+        // (x^3/2 ~ V, so x ~ 0.2145) has area V like every other layer.
+        let z = ziggurat();
+        assert!(z.x[255] > 0.21 && z.x[255] < 0.22, "{}", z.x[255]);
+        let top = z.x[255] * (1.0 - z.f[255]);
+        assert!((top - ZIG_V).abs() < 1e-6, "{top}");
     }
 
     #[test]

@@ -1,0 +1,159 @@
+//! `paddock perf`: the simulator's speed on one thread.
+//!
+//! Cars driven by pure pursuit lap the map (episodes restart from seeded random starts);
+//! only the time inside `World::step` is counted, so the figure is the simulator's own
+//! cost: dynamics, collisions, laps and (unless disabled) the 1080-beam LIDAR of every
+//! car. Rays/s times the LIDAR alone from poses recorded on the track.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use clap::Args;
+use paddock_policy::{PurePursuit, PurePursuitParams};
+use paddock_sim::collision::CollisionMode;
+use paddock_sim::geometry::Pose;
+use paddock_sim::lidar::{Lidar, LidarConfig};
+use paddock_sim::track::{Circuit, DEFAULT_MAP};
+use paddock_sim::world::{Action, Starts, World, WorldConfig};
+use serde::Serialize;
+
+#[derive(Args)]
+pub struct PerfArgs {
+    /// Map name or directory (default: the default shipped map).
+    #[arg(long)]
+    map: Option<String>,
+    /// Number of cars stepped together.
+    #[arg(long, default_value_t = 1)]
+    agents: usize,
+    /// Skip the measurements with the LIDAR scan.
+    #[arg(long)]
+    no_scan: bool,
+    /// Wall-clock seconds per measurement.
+    #[arg(long, default_value_t = 3.0)]
+    seconds: f64,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct PerfReport {
+    map: String,
+    agents: usize,
+    agent_steps_per_s_scan: Option<f64>,
+    agent_steps_per_s_noscan: f64,
+    rays_per_s: Option<f64>,
+}
+
+struct Run {
+    agent_steps: u64,
+    busy: Duration,
+    poses: Vec<Pose>,
+}
+
+fn drive(
+    circuit: &std::sync::Arc<Circuit>,
+    agents: usize,
+    scan: bool,
+    seconds: f64,
+) -> Result<Run> {
+    let mut config = WorldConfig::with_agents(agents);
+    config.collision_mode = CollisionMode::Stop;
+    for a in &mut config.agents {
+        a.scan = scan;
+    }
+    let mut world = World::new(circuit.clone(), config)?;
+    let mut drivers: Vec<PurePursuit> = (0..agents)
+        .map(|_| PurePursuit::new(&circuit.track, PurePursuitParams::default()))
+        .collect();
+    let mut actions = vec![Action::default(); agents];
+    let budget = Duration::from_secs_f64(seconds.max(0.1));
+    let mut busy = Duration::ZERO;
+    let mut agent_steps = 0u64;
+    let mut poses = Vec::new();
+    let mut seed = 0u64;
+    while busy < budget {
+        world.reset(seed, &Starts::Random)?;
+        drivers.iter_mut().for_each(PurePursuit::reset);
+        seed += 1;
+        for step in 0..3000u32 {
+            let obs = world.observation()?;
+            for (i, d) in drivers.iter_mut().enumerate() {
+                let pose = Pose::new(obs.poses_x[i], obs.poses_y[i], obs.poses_theta[i]);
+                if step.is_multiple_of(16) && poses.len() < 4096 {
+                    poses.push(pose);
+                }
+                actions[i] = d.act(pose, obs.linear_vels_x[i]);
+            }
+            let t0 = Instant::now();
+            world.step(&actions)?;
+            busy += t0.elapsed();
+            agent_steps += agents as u64;
+        }
+    }
+    Ok(Run {
+        agent_steps,
+        busy,
+        poses,
+    })
+}
+
+pub fn run(args: &PerfArgs) -> Result<()> {
+    let name = args.map.as_deref().unwrap_or(DEFAULT_MAP);
+    let circuit = Circuit::resolve(name, &[]).with_context(|| format!("loading map {name:?}"))?;
+    anyhow::ensure!(
+        (1..=64).contains(&args.agents),
+        "--agents {} is out of range (1..=64)",
+        args.agents
+    );
+    tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
+    let noscan = drive(&circuit, args.agents, false, args.seconds)?;
+    let noscan_rate = noscan.agent_steps as f64 / noscan.busy.as_secs_f64();
+    let (scan_rate, rays_rate) = if args.no_scan {
+        (None, None)
+    } else {
+        tracing::info!(map = %circuit.name, agents = args.agents, "measuring with scan");
+        let scan = drive(&circuit, args.agents, true, args.seconds)?;
+        let scan_rate = scan.agent_steps as f64 / scan.busy.as_secs_f64();
+        let lidar = Lidar::new(LidarConfig::default());
+        let beams = LidarConfig::default().num_beams;
+        let mut out = vec![0.0; beams];
+        let budget = Duration::from_secs_f64(args.seconds.max(0.1));
+        let t0 = Instant::now();
+        let mut scans = 0u64;
+        let mut checksum = 0.0;
+        while t0.elapsed() < budget {
+            for p in &noscan.poses {
+                lidar.scan(&circuit.map, *p, &[], &mut out);
+                checksum += out[beams / 2];
+                scans += 1;
+            }
+        }
+        let rays = scans as f64 * beams as f64 / t0.elapsed().as_secs_f64();
+        tracing::debug!(checksum, "rays measured");
+        (Some(scan_rate), Some(rays))
+    };
+    let report = PerfReport {
+        map: circuit.name.clone(),
+        agents: args.agents,
+        agent_steps_per_s_scan: scan_rate,
+        agent_steps_per_s_noscan: noscan_rate,
+        rays_per_s: rays_rate,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+        return Ok(());
+    }
+    println!("map {}, {} agent(s), one thread", report.map, report.agents);
+    if let Some(r) = report.agent_steps_per_s_scan {
+        println!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
+    }
+    println!(
+        "  agent-steps/s without scan:        {:>14.0}",
+        report.agent_steps_per_s_noscan
+    );
+    if let Some(r) = report.rays_per_s {
+        println!("  LIDAR rays/s:                      {r:>14.0}");
+    }
+    Ok(())
+}

@@ -1,0 +1,92 @@
+//! The `paddock` binary end to end: perf, demo, maps list and generate, errors.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn paddock(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_paddock"))
+        .args(args)
+        .output()
+        .expect("run paddock");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn perf_json_has_the_documented_keys() {
+    let (ok, out, err) = paddock(&["perf", "--json", "--seconds", "0.2", "--agents", "2"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    for k in [
+        "agent_steps_per_s_scan",
+        "agent_steps_per_s_noscan",
+        "rays_per_s",
+    ] {
+        assert!(v[k].as_f64().unwrap() > 0.0, "{k} in {out}");
+    }
+    let (ok, out, err) = paddock(&["perf", "--json", "--seconds", "0.2", "--no-scan"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(v["agent_steps_per_s_noscan"].as_f64().unwrap() > 0.0);
+    assert!(v["agent_steps_per_s_scan"].is_null());
+}
+
+#[test]
+fn demo_laps_the_default_map_deterministically() {
+    let (ok, a, err) = paddock(&["demo", "--json", "--seed", "4"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&a).unwrap();
+    assert_eq!(v["map"], "lakeside");
+    assert_eq!(v["agents"][0]["status"], "finished", "{a}");
+    assert_eq!(v["agents"][0]["lap_times"].as_array().unwrap().len(), 2);
+    let (_, b, _) = paddock(&["demo", "--json", "--seed", "4"]);
+    assert_eq!(a, b, "same flags, same output");
+}
+
+#[test]
+fn maps_list_and_generate() {
+    let (ok, out, err) = paddock(&["maps", "list", "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let names: Vec<&str> = v
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["name"].as_str().unwrap())
+        .collect();
+    for n in ["lakeside", "quarry", "harbour"] {
+        assert!(names.contains(&n), "{names:?}");
+    }
+    let tmp: PathBuf =
+        std::env::temp_dir().join(format!("paddock-cli-maps-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let tmp_s = tmp.to_str().unwrap();
+    let (ok, _, err) = paddock(&[
+        "maps", "generate", "--seed", "5", "--length", "80", "--name", "mini", "--out", tmp_s,
+    ]);
+    assert!(ok, "{err}");
+    // the generated map is listed from its directory and can be driven
+    let (ok, out, err) = paddock(&["maps", "list", tmp_s]);
+    assert!(ok, "{err}");
+    assert!(out.contains("mini"), "{out}");
+    let (ok, out, err) = paddock(&["demo", "--map", &format!("{tmp_s}/mini"), "--laps", "1"]);
+    assert!(ok, "{err}");
+    assert!(out.contains("finished"), "{out}");
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+#[test]
+fn unknown_map_is_a_clear_error() {
+    let (ok, _, err) = paddock(&["demo", "--map", "atlantis"]);
+    assert!(!ok);
+    assert!(
+        err.contains("atlantis") && err.contains("unknown map"),
+        "{err}"
+    );
+    let (ok, _, err) = paddock(&["perf", "--agents", "0"]);
+    assert!(!ok);
+    assert!(err.contains("--agents"), "{err}");
+}

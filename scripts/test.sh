@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Runs every check and test of Paddock: formatting, clippy, the Rust test suites
+# (unit, conformance against f1tenth_gym, end-to-end). Installs what it needs first.
+#
+# The conformance tests read ../shared (the f1tenth_gym reference vectors and the real
+# race tracks) beside this checkout; set PADDOCK_SHARED to point elsewhere.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+source scripts/setup.sh
+
+# Reuse one build directory across clones and runs: saves the cold build.
+export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/paddock/target}"
+export CARGO_TERM_COLOR="${CARGO_TERM_COLOR:-never}"
+
+echo "== cargo fmt --check"
+cargo fmt --all -- --check
+echo "== cargo clippy"
+cargo clippy --workspace --all-targets --locked -- -D warnings
+echo "== cargo test (release: the conformance and simulator tests step millions of times)"
+cargo test --workspace --release --locked
+echo "== benchmarks compile"
+cargo bench --workspace --locked --no-run

@@ -1,0 +1,117 @@
+//! One 1080-beam LIDAR scan on a race-track-like map: a stadium-shaped ring corridor
+//! 3 m wide with 0.1 m walls, 0.05 m cells, 1040 x 1040 cells (free outside the walls,
+//! like the shipped track maps), from poses on the centre line heading along it.
+//! Compares the exact [`Lidar::scan`] with the reference port [`Lidar::scan_reference`].
+//! Rays per second = 1080 / time per scan (criterion's "thrpt", in elements).
+//!
+//! Recorded (2-core AMD EPYC VM shared with other builds, so +-20 %; AVX path):
+//! scan 28-31 M rays/s (about 36 us per scan), scan_reference 6.8-7.0 M rays/s.
+//! On shipped tracks from centerline poses (`cargo test -p paddock-sim --release --test
+//! maps -- --ignored --nocapture`): scan 31-37 M rays/s, scan_reference 8-10 M rays/s.
+
+use std::hint::black_box;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use paddock_sim::geometry::Pose;
+use paddock_sim::lidar::{Lidar, LidarConfig};
+use paddock_sim::map::Map;
+
+const RES: f64 = 0.05;
+const SIZE: usize = 1040;
+const HALF_STRAIGHT: f64 = 8.0;
+const RADIUS: f64 = 16.0;
+const HALF_WIDTH: f64 = 1.5;
+const WALL: f64 = 0.1;
+
+/// Distance from (x, y) to the stadium's centre line (segment of half length
+/// HALF_STRAIGHT on the x axis, inflated by RADIUS), signed: negative inside.
+fn centre_offset(x: f64, y: f64) -> f64 {
+    let cx = x.clamp(-HALF_STRAIGHT, HALF_STRAIGHT);
+    (x - cx).hypot(y) - RADIUS
+}
+
+fn ring_map() -> Map {
+    let origin = -(SIZE as f64) * RES / 2.0;
+    let mut occupied = vec![false; SIZE * SIZE];
+    for r in 0..SIZE {
+        for c in 0..SIZE {
+            let x = origin + (c as f64 + 0.5) * RES;
+            let y = origin + (r as f64 + 0.5) * RES;
+            let d = centre_offset(x, y).abs();
+            occupied[r * SIZE + c] = (HALF_WIDTH..HALF_WIDTH + WALL).contains(&d);
+        }
+    }
+    Map::from_grid(
+        "ring",
+        SIZE,
+        SIZE,
+        RES,
+        Pose::new(origin, origin, 0.0),
+        occupied,
+    )
+    .expect("valid synthetic map")
+}
+
+/// Poses on the centre line, counter-clockwise, heading along the track.
+fn centre_poses(n: usize) -> Vec<Pose> {
+    let straight = 2.0 * HALF_STRAIGHT;
+    let arc = std::f64::consts::PI * RADIUS;
+    let lap = 2.0 * (straight + arc);
+    (0..n)
+        .map(|i| {
+            let s = lap * i as f64 / n as f64;
+            if s < straight {
+                Pose::new(-HALF_STRAIGHT + s, -RADIUS, 0.0)
+            } else if s < straight + arc {
+                let a = -std::f64::consts::FRAC_PI_2 + (s - straight) / RADIUS;
+                Pose::new(
+                    HALF_STRAIGHT + RADIUS * a.cos(),
+                    RADIUS * a.sin(),
+                    a + std::f64::consts::FRAC_PI_2,
+                )
+            } else if s < 2.0 * straight + arc {
+                Pose::new(
+                    HALF_STRAIGHT - (s - straight - arc),
+                    RADIUS,
+                    std::f64::consts::PI,
+                )
+            } else {
+                let a = std::f64::consts::FRAC_PI_2 + (s - 2.0 * straight - arc) / RADIUS;
+                Pose::new(
+                    -HALF_STRAIGHT + RADIUS * a.cos(),
+                    RADIUS * a.sin(),
+                    a + std::f64::consts::FRAC_PI_2,
+                )
+            }
+        })
+        .collect()
+}
+
+fn bench_scan(c: &mut Criterion) {
+    let map = ring_map();
+    let _ = map.distance_field();
+    let poses = centre_poses(97);
+    let lidar = Lidar::new(LidarConfig::default());
+    let mut out = vec![0.0; lidar.num_beams()];
+    let mut group = c.benchmark_group("lidar_ring_0.05m");
+    group.throughput(Throughput::Elements(lidar.num_beams() as u64));
+    let mut i = 0;
+    group.bench_function("scan", |b| {
+        b.iter(|| {
+            i = (i + 1) % poses.len();
+            lidar.scan(&map, black_box(poses[i]), &[], &mut out);
+            black_box(&out);
+        })
+    });
+    group.bench_function("scan_reference", |b| {
+        b.iter(|| {
+            i = (i + 1) % poses.len();
+            lidar.scan_reference(&map, black_box(poses[i]), &mut out);
+            black_box(&out);
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_scan);
+criterion_main!(benches);

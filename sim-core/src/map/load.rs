@@ -1,0 +1,322 @@
+//! Loading ROS map_server maps (YAML + PNG/PGM) and the process-wide map cache.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::time::SystemTime;
+
+use serde_norway::Value;
+
+use super::Map;
+use crate::geometry::Pose;
+
+/// How image pixel values become occupied / free cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum OccupancyRule {
+    /// ROS map_server semantics: p = (255 - v) / 255 (v / 255 with `negate`); occupied
+    /// if p > occupied_thresh; everything else free ("unknown" counts as free, as the
+    /// reference simulator does). `mode: raw` reads v as the occupancy in percent.
+    #[default]
+    Ros,
+    /// The f1tenth_gym reference: pixel value <= 128 is occupied; the YAML thresholds
+    /// and `negate` are ignored.
+    Reference,
+}
+
+/// Why a map could not be built. Every variant names the file (or grid) and the field.
+#[derive(Debug, thiserror::Error)]
+pub enum MapError {
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not valid YAML: {message}")]
+    Yaml { path: PathBuf, message: String },
+    #[error("{path}: missing field `{field}`")]
+    MissingField { path: PathBuf, field: &'static str },
+    #[error("{path}: field `{field}` = {value}: {reason}")]
+    InvalidField {
+        path: PathBuf,
+        field: &'static str,
+        value: String,
+        reason: String,
+    },
+    #[error("map image {path} (from {yaml}): {message}")]
+    Image {
+        path: PathBuf,
+        yaml: PathBuf,
+        message: String,
+    },
+    #[error("map grid `{name}`: {reason}")]
+    InvalidGrid { name: String, reason: String },
+}
+
+/// The parsed YAML.
+struct MapSpec {
+    image: PathBuf,
+    resolution: f64,
+    origin: Pose,
+    negate: bool,
+    occupied_thresh: f64,
+    mode: Mode,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    Trinary,
+    Scale,
+    Raw,
+}
+
+#[derive(Clone, PartialEq, Eq, Hash)]
+struct CacheKey {
+    yaml: (PathBuf, u64, Option<SystemTime>),
+    image: (PathBuf, u64, Option<SystemTime>),
+    rule: OccupancyRule,
+}
+
+/// Maps stay alive only as long as someone holds them; the cache never keeps one alive.
+fn cache() -> &'static Mutex<HashMap<CacheKey, Weak<Map>>> {
+    static CACHE: OnceLock<Mutex<HashMap<CacheKey, Weak<Map>>>> = OnceLock::new();
+    CACHE.get_or_init(|| Mutex::new(HashMap::new()))
+}
+
+fn file_id(path: &Path) -> Result<(PathBuf, u64, Option<SystemTime>), MapError> {
+    let io = |source| MapError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let canon = std::fs::canonicalize(path).map_err(io)?;
+    let meta = std::fs::metadata(&canon).map_err(io)?;
+    Ok((canon, meta.len(), meta.modified().ok()))
+}
+
+impl Map {
+    /// Load a ROS map_server map (YAML + image) with [`OccupancyRule::Ros`]. Cached
+    /// process-wide: loading the same unchanged file again while the first map is alive
+    /// returns the same `Arc` (key: canonical path, size and mtime of the YAML and of the
+    /// image, and the rule).
+    pub fn load(yaml: &Path) -> Result<Arc<Map>, MapError> {
+        Self::load_with(yaml, OccupancyRule::Ros)
+    }
+
+    /// [`Map::load`] with an explicit occupancy rule.
+    pub fn load_with(yaml: &Path, rule: OccupancyRule) -> Result<Arc<Map>, MapError> {
+        let yaml_id = file_id(yaml)?;
+        let text = std::fs::read_to_string(&yaml_id.0).map_err(|source| MapError::Io {
+            path: yaml.to_path_buf(),
+            source,
+        })?;
+        let spec = parse_yaml(yaml, &text)?;
+        let image_id = file_id(&spec.image).map_err(|e| match e {
+            MapError::Io { path, source } => MapError::Image {
+                path,
+                yaml: yaml.to_path_buf(),
+                message: source.to_string(),
+            },
+            other => other,
+        })?;
+        let key = CacheKey {
+            yaml: yaml_id,
+            image: image_id,
+            rule,
+        };
+        if let Some(map) = cache()
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(&key)
+            .and_then(Weak::upgrade)
+        {
+            return Ok(map);
+        }
+        // Built outside the lock: a slow load does not block other maps.
+        let name = yaml
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let map = Arc::new(build(yaml, &name, &spec, rule)?);
+        let mut guard = cache().lock().unwrap_or_else(|p| p.into_inner());
+        guard.retain(|_, w| w.strong_count() > 0);
+        // If another thread loaded the same file meanwhile, everyone shares its map.
+        if let Some(existing) = guard.get(&key).and_then(Weak::upgrade) {
+            return Ok(existing);
+        }
+        guard.insert(key, Arc::downgrade(&map));
+        Ok(map)
+    }
+}
+
+fn build(yaml: &Path, name: &str, spec: &MapSpec, rule: OccupancyRule) -> Result<Map, MapError> {
+    let img_err = |message: String| MapError::Image {
+        path: spec.image.clone(),
+        yaml: yaml.to_path_buf(),
+        message,
+    };
+    let img = image::ImageReader::open(&spec.image)
+        .map_err(|e| img_err(e.to_string()))?
+        .with_guessed_format()
+        .map_err(|e| img_err(e.to_string()))?
+        .decode()
+        .map_err(|e| img_err(e.to_string()))?;
+    let grey = img.into_luma8();
+    let (w, h) = (grey.width() as usize, grey.height() as usize);
+    if w == 0 || h == 0 {
+        return Err(img_err(format!("empty image {w} x {h}")));
+    }
+    let raw = grey.as_raw();
+    let mut occupied = vec![false; w * h];
+    // The rule depends on the pixel value only: decide once per value.
+    let mut table = [false; 256];
+    for (v, slot) in table.iter_mut().enumerate() {
+        *slot = is_occupied(v as u8, spec, rule);
+    }
+    for r in 0..h {
+        // Grid row 0 is the image's bottom row.
+        let src = &raw[(h - 1 - r) * w..(h - r) * w];
+        let dst = &mut occupied[r * w..(r + 1) * w];
+        for c in 0..w {
+            dst[c] = table[usize::from(src[c])];
+        }
+    }
+    Map::from_grid(name, w, h, spec.resolution, spec.origin, occupied).map_err(|e| match e {
+        MapError::InvalidGrid { reason, .. } => img_err(reason),
+        other => other,
+    })
+}
+
+#[inline]
+fn is_occupied(v: u8, spec: &MapSpec, rule: OccupancyRule) -> bool {
+    match rule {
+        OccupancyRule::Reference => v <= 128,
+        OccupancyRule::Ros => match spec.mode {
+            Mode::Raw => v <= 100 && f64::from(v) / 100.0 > spec.occupied_thresh,
+            Mode::Trinary | Mode::Scale => {
+                let p = if spec.negate {
+                    f64::from(v) / 255.0
+                } else {
+                    f64::from(255 - v) / 255.0
+                };
+                p > spec.occupied_thresh
+            }
+        },
+    }
+}
+
+fn parse_yaml(path: &Path, text: &str) -> Result<MapSpec, MapError> {
+    let path_buf = || path.to_path_buf();
+    let doc: Value = serde_norway::from_str(text).map_err(|e| MapError::Yaml {
+        path: path_buf(),
+        message: e.to_string(),
+    })?;
+    if !doc.is_mapping() {
+        return Err(MapError::Yaml {
+            path: path_buf(),
+            message: "top level is not a mapping".into(),
+        });
+    }
+    let invalid = |field: &'static str, value: &Value, reason: &str| MapError::InvalidField {
+        path: path_buf(),
+        field,
+        value: show(value),
+        reason: reason.to_string(),
+    };
+    let missing = |field| MapError::MissingField {
+        path: path_buf(),
+        field,
+    };
+    let number = |field: &'static str, v: &Value| -> Result<f64, MapError> {
+        v.as_f64().ok_or_else(|| invalid(field, v, "not a number"))
+    };
+
+    let image_v = doc.get("image").ok_or_else(|| missing("image"))?;
+    let image_s = image_v
+        .as_str()
+        .filter(|s| !s.trim().is_empty())
+        .ok_or_else(|| invalid("image", image_v, "not a file name"))?;
+    let image_p = Path::new(image_s);
+    let image = if image_p.is_absolute() {
+        image_p.to_path_buf()
+    } else {
+        path.parent().unwrap_or(Path::new("")).join(image_p)
+    };
+
+    let res_v = doc.get("resolution").ok_or_else(|| missing("resolution"))?;
+    let resolution = number("resolution", res_v)?;
+    if !(resolution.is_finite() && resolution > 0.0) {
+        return Err(invalid(
+            "resolution",
+            res_v,
+            "must be a positive finite number",
+        ));
+    }
+
+    let origin_v = doc.get("origin").ok_or_else(|| missing("origin"))?;
+    let seq = origin_v
+        .as_sequence()
+        .filter(|s| s.len() == 2 || s.len() == 3)
+        .ok_or_else(|| invalid("origin", origin_v, "expected [x, y, yaw]"))?;
+    let mut o = [0.0; 3];
+    for (slot, v) in o.iter_mut().zip(seq) {
+        *slot = number("origin", v)?;
+        if !slot.is_finite() {
+            return Err(invalid("origin", origin_v, "components must be finite"));
+        }
+    }
+
+    let negate = match doc.get("negate") {
+        None | Some(Value::Null) => false,
+        Some(v) => match (v.as_bool(), v.as_i64()) {
+            (Some(b), _) => b,
+            (_, Some(0)) => false,
+            (_, Some(1)) => true,
+            _ => return Err(invalid("negate", v, "expected 0, 1, true or false")),
+        },
+    };
+    let thresh = |field: &'static str, default: f64| -> Result<f64, MapError> {
+        match doc.get(field) {
+            None | Some(Value::Null) => Ok(default),
+            Some(v) => {
+                let t = number(field, v)?;
+                if (0.0..=1.0).contains(&t) {
+                    Ok(t)
+                } else {
+                    Err(invalid(field, v, "must be in [0, 1]"))
+                }
+            }
+        }
+    };
+    let occupied_thresh = thresh("occupied_thresh", 0.65)?;
+    let free_thresh = thresh("free_thresh", 0.196)?;
+    if free_thresh > occupied_thresh {
+        return Err(invalid(
+            "free_thresh",
+            doc.get("free_thresh").unwrap_or(&Value::Null),
+            "must not exceed occupied_thresh",
+        ));
+    }
+    let mode = match doc.get("mode") {
+        None | Some(Value::Null) => Mode::Trinary,
+        Some(v) => match v.as_str() {
+            Some("trinary") => Mode::Trinary,
+            Some("scale") => Mode::Scale,
+            Some("raw") => Mode::Raw,
+            _ => return Err(invalid("mode", v, "expected trinary, scale or raw")),
+        },
+    };
+    Ok(MapSpec {
+        image,
+        resolution,
+        origin: Pose::new(o[0], o[1], o[2]),
+        negate,
+        occupied_thresh,
+        mode,
+    })
+}
+
+fn show(v: &Value) -> String {
+    match serde_norway::to_string(v) {
+        Ok(s) => s.trim_end().to_string(),
+        Err(_) => format!("{v:?}"),
+    }
+}

@@ -1,0 +1,414 @@
+//! Occupancy-grid maps: ROS map_server YAML + PNG/PGM, immutable once built.
+//!
+//! A [`Map`] holds the occupancy grid (row 0 = the image's bottom row, i.e. the map
+//! origin side), its resolution and origin pose, and two acceleration structures:
+//! - a Chebyshev (L-infinity) clearance per cell, built eagerly in two passes: the LIDAR
+//!   uses it to jump across empty square blocks, and [`Map::clearance`] reads it;
+//! - the exact Euclidean distance transform ([`Map::distance_field`]), built on first
+//!   use, needed only by the reference (f1tenth_gym) scan mode.
+//!
+//! Maps loaded from files are cached process-wide ([`Map::load`]): only immutable maps are
+//! shared, so several maps coexist without interfering.
+
+mod edt;
+mod load;
+
+use std::sync::OnceLock;
+
+use crate::geometry::Pose;
+
+pub use load::{MapError, OccupancyRule};
+
+/// The largest Chebyshev clearance stored per cell (saturating; a capped value is a
+/// lower bound, so everything that reads it stays exact or conservative).
+pub(crate) const CHEB_MAX: u8 = u8::MAX;
+
+/// An occupancy-grid map. Immutable after construction; `Send + Sync`.
+#[derive(Debug)]
+pub struct Map {
+    name: String,
+    width: usize,
+    height: usize,
+    resolution: f64,
+    origin: Pose,
+    /// cos and sin of the origin yaw (libm), cached for the frame transforms.
+    origin_cos: f64,
+    origin_sin: f64,
+    occupied: Vec<bool>,
+    /// Chebyshev clearance on the grid padded with one cell on every side, row-major
+    /// `(width + 2) x (height + 2)`, map cell (c, r) at `(r + 1) * (width + 2) + c + 1`.
+    /// 0 on occupied cells and on the padding; else the chessboard distance (in cells) to
+    /// the nearest occupied cell or to the padding (the map border counts as a wall here),
+    /// saturated at [`CHEB_MAX`]. So a free cell with value `v` is the centre of an
+    /// all-free `(2v-1) x (2v-1)` block that lies inside the map, and a ray jumping across
+    /// such blocks never leaves the padded grid.
+    cheb: Vec<u8>,
+    content_hash: OnceLock<u64>,
+    distance_field: OnceLock<Vec<f64>>,
+}
+
+impl Map {
+    /// A map from a row-major occupancy grid (`occupied[row * width + col]`, row 0 at the
+    /// origin side). `resolution` is metres per cell; `origin` is the pose of the corner of
+    /// cell (0, 0) in the world frame (ROS map_server convention, yaw honoured).
+    pub fn from_grid(
+        name: &str,
+        width: usize,
+        height: usize,
+        resolution: f64,
+        origin: Pose,
+        occupied: Vec<bool>,
+    ) -> Result<Map, MapError> {
+        let bad = |reason: String| MapError::InvalidGrid {
+            name: name.to_string(),
+            reason,
+        };
+        if width == 0 || height == 0 {
+            return Err(bad(format!("empty grid {width} x {height}")));
+        }
+        if width > i32::MAX as usize / 2 || height > i32::MAX as usize / 2 {
+            return Err(bad(format!("grid {width} x {height} is too large")));
+        }
+        let cells = width
+            .checked_mul(height)
+            .ok_or_else(|| bad(format!("grid {width} x {height} is too large")))?;
+        if occupied.len() != cells {
+            return Err(bad(format!(
+                "occupancy has {} cells, expected width {width} x height {height} = {cells}",
+                occupied.len()
+            )));
+        }
+        if !(resolution.is_finite() && resolution > 0.0) {
+            return Err(bad(format!(
+                "resolution {resolution} is not a positive finite number"
+            )));
+        }
+        if !(origin.x.is_finite() && origin.y.is_finite() && origin.theta.is_finite()) {
+            return Err(bad(format!(
+                "origin ({}, {}, {}) is not finite",
+                origin.x, origin.y, origin.theta
+            )));
+        }
+        let cheb = chebyshev_clearance(width, height, &occupied);
+        Ok(Map {
+            name: name.to_string(),
+            width,
+            height,
+            resolution,
+            origin,
+            origin_cos: libm::cos(origin.theta),
+            origin_sin: libm::sin(origin.theta),
+            occupied,
+            cheb,
+            content_hash: OnceLock::new(),
+            distance_field: OnceLock::new(),
+        })
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+    /// Metres per cell.
+    pub fn resolution(&self) -> f64 {
+        self.resolution
+    }
+    /// Pose of the outer corner of cell (0, 0) in the world frame.
+    pub fn origin(&self) -> Pose {
+        self.origin
+    }
+    /// Columns.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+    /// Rows.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// FNV-1a (64 bit) over, in order: width and height (u64 little-endian), the bits of
+    /// resolution, origin x, y and yaw (u64 little-endian each), then one byte per cell
+    /// (1 = occupied, 0 = free) in row-major order, row 0 first. Independent of the file
+    /// the map came from, so maps can be shipped and compared by hash.
+    /// Computed on first use and kept.
+    pub fn content_hash(&self) -> u64 {
+        *self.content_hash.get_or_init(|| {
+            hash_grid(
+                self.width,
+                self.height,
+                self.resolution,
+                self.origin,
+                &self.occupied,
+            )
+        })
+    }
+
+    /// World (x, y) in metres to continuous grid coordinates (col, row) in cells: cell
+    /// (c, r) covers [c, c+1) x [r, r+1). The origin yaw is applied.
+    #[inline]
+    pub fn world_to_grid(&self, x: f64, y: f64) -> (f64, f64) {
+        let (dx, dy) = (x - self.origin.x, y - self.origin.y);
+        let xr = self.origin_cos * dx + self.origin_sin * dy;
+        let yr = -self.origin_sin * dx + self.origin_cos * dy;
+        (xr / self.resolution, yr / self.resolution)
+    }
+
+    /// Inverse of [`Map::world_to_grid`].
+    #[inline]
+    pub fn grid_to_world(&self, gx: f64, gy: f64) -> (f64, f64) {
+        let (xr, yr) = (gx * self.resolution, gy * self.resolution);
+        (
+            self.origin.x + self.origin_cos * xr - self.origin_sin * yr,
+            self.origin.y + self.origin_sin * xr + self.origin_cos * yr,
+        )
+    }
+
+    /// Whether cell (col, row) is occupied; off-map cells are free.
+    #[inline]
+    pub fn cell_occupied(&self, col: i64, row: i64) -> bool {
+        if col < 0 || row < 0 || col >= self.width as i64 || row >= self.height as i64 {
+            return false;
+        }
+        self.occupied[row as usize * self.width + col as usize]
+    }
+
+    /// Whether the world point (x, y) lies in an occupied cell.
+    pub fn occupied_at(&self, x: f64, y: f64) -> bool {
+        let (gx, gy) = self.world_to_grid(x, y);
+        if !(gx.is_finite() && gy.is_finite()) {
+            return false;
+        }
+        self.cell_occupied(libm::floor(gx) as i64, libm::floor(gy) as i64)
+    }
+
+    /// A conservative lower bound (metres) on the distance from (x, y) to the nearest
+    /// occupied cell square; 0 inside an occupied cell. Read from the Chebyshev clearance:
+    /// the point's cell is the centre of an all-free square block, and the distance to
+    /// that block's border bounds the distance to any occupied cell. O(1).
+    pub fn clearance(&self, x: f64, y: f64) -> f64 {
+        let (gx, gy) = self.world_to_grid(x, y);
+        if !(gx.is_finite() && gy.is_finite()) {
+            return 0.0;
+        }
+        let (w, h) = (self.width as f64, self.height as f64);
+        if gx < 0.0 || gy < 0.0 || gx >= w || gy >= h {
+            // Every occupied cell lies inside the map rectangle.
+            let ex = (-gx).max(gx - w).max(0.0);
+            let ey = (-gy).max(gy - h).max(0.0);
+            return libm::hypot(ex, ey) * self.resolution;
+        }
+        let (c, r) = (gx as usize, gy as usize);
+        let v = self.cheb[(r + 1) * (self.width + 2) + c + 1];
+        if v == 0 {
+            return 0.0;
+        }
+        let k = f64::from(v - 1);
+        let (fx, fy) = (gx - c as f64, gy - r as f64);
+        let m = (k + fx).min(k + 1.0 - fx).min(k + fy).min(k + 1.0 - fy);
+        m.max(0.0) * self.resolution
+    }
+
+    /// The exact Euclidean distance transform, row-major like the grid: for each cell the
+    /// distance in metres from its centre to the nearest occupied cell centre (0 on
+    /// occupied cells), i.e. `scipy.ndimage.distance_transform_edt(free) * resolution`;
+    /// `f64::INFINITY` everywhere if no cell is occupied. Computed on first use (O(N),
+    /// Felzenszwalb-Huttenlocher) and kept.
+    pub fn distance_field(&self) -> &[f64] {
+        self.distance_field.get_or_init(|| {
+            let d2 = edt::squared_edt(self.width, self.height, &self.occupied);
+            d2.into_iter()
+                .map(|v| {
+                    if v == u64::MAX {
+                        f64::INFINITY
+                    } else {
+                        self.resolution * libm::sqrt(v as f64)
+                    }
+                })
+                .collect()
+        })
+    }
+
+    /// Row-major occupancy, row 0 at the origin side.
+    pub fn occupancy(&self) -> &[bool] {
+        &self.occupied
+    }
+
+    /// Padded per-cell Chebyshev clearance (see the field doc); for the LIDAR.
+    #[inline]
+    pub(crate) fn chebyshev(&self) -> &[u8] {
+        &self.cheb
+    }
+}
+
+/// Chessboard distance transform on the padded grid (see `Map::cheb`): two passes of the
+/// 8-neighbour chamfer with unit weights, which is exact for L-infinity, saturating at
+/// [`CHEB_MAX`]. The padding is 0, so every interior cell has all 8 neighbours.
+fn chebyshev_clearance(w: usize, h: usize, occupied: &[bool]) -> Vec<u8> {
+    let wp = w + 2;
+    let mut d = vec![0u8; wp * (h + 2)];
+    for r in 0..h {
+        let src = &occupied[r * w..(r + 1) * w];
+        let dst = &mut d[(r + 1) * wp + 1..(r + 1) * wp + 1 + w];
+        for c in 0..w {
+            dst[c] = if src[c] { 0 } else { CHEB_MAX };
+        }
+    }
+    // Written without closures or iterator adaptors: maps load in debug builds (tests)
+    // too, where those are not inlined.
+    #[inline(always)]
+    fn step(n: u8) -> u8 {
+        if n == CHEB_MAX { CHEB_MAX } else { n + 1 }
+    }
+    for r in 1..=h {
+        let (above, rest) = d.split_at_mut(r * wp);
+        let up = &above[(r - 1) * wp..];
+        let row = &mut rest[..wp];
+        for c in 1..=w {
+            let mut v = row[c];
+            if v != 0 {
+                v = v.min(step(row[c - 1]));
+                v = v.min(step(up[c - 1]));
+                v = v.min(step(up[c]));
+                v = v.min(step(up[c + 1]));
+                row[c] = v;
+            }
+        }
+    }
+    for r in (1..=h).rev() {
+        let (upto, below) = d.split_at_mut((r + 1) * wp);
+        let row = &mut upto[r * wp..];
+        let dn = &below[..wp];
+        for c in (1..=w).rev() {
+            let mut v = row[c];
+            if v != 0 {
+                v = v.min(step(row[c + 1]));
+                v = v.min(step(dn[c + 1]));
+                v = v.min(step(dn[c]));
+                v = v.min(step(dn[c - 1]));
+                row[c] = v;
+            }
+        }
+    }
+    d
+}
+
+fn hash_grid(w: usize, h: usize, resolution: f64, origin: Pose, occupied: &[bool]) -> u64 {
+    const OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    let mut hash = OFFSET;
+    let mut feed = |bytes: &[u8]| {
+        for &b in bytes {
+            hash ^= u64::from(b);
+            hash = hash.wrapping_mul(PRIME);
+        }
+    };
+    feed(&(w as u64).to_le_bytes());
+    feed(&(h as u64).to_le_bytes());
+    for v in [resolution, origin.x, origin.y, origin.theta] {
+        feed(&v.to_bits().to_le_bytes());
+    }
+    for &o in occupied {
+        feed(&[u8::from(o)]);
+    }
+    hash
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(w: usize, h: usize, occ: &[(usize, usize)]) -> Map {
+        let mut g = vec![false; w * h];
+        for &(c, r) in occ {
+            g[r * w + c] = true;
+        }
+        Map::from_grid("t", w, h, 0.1, Pose::new(0.0, 0.0, 0.0), g).unwrap()
+    }
+
+    #[test]
+    fn map_is_send_and_sync() {
+        fn check<T: Send + Sync>() {}
+        check::<Map>();
+        check::<std::sync::Arc<Map>>();
+    }
+
+    #[test]
+    fn chebyshev_matches_brute_force() {
+        let mut rng = crate::rng::Rng::new(5);
+        let (w, h) = (23, 17);
+        let occ: Vec<(usize, usize)> = (0..12)
+            .map(|_| (rng.below(w as u64) as usize, rng.below(h as u64) as usize))
+            .collect();
+        let m = grid(w, h, &occ);
+        for r in 0..h {
+            for c in 0..w {
+                let (ci, ri) = (c as i64, r as i64);
+                let border = (ci + 1).min(ri + 1).min(w as i64 - ci).min(h as i64 - ri);
+                let brute = occ
+                    .iter()
+                    .map(|&(oc, or)| (oc as i64 - ci).abs().max((or as i64 - ri).abs()))
+                    .min()
+                    .unwrap()
+                    .min(border);
+                let got = m.cheb[(r + 1) * (w + 2) + c + 1];
+                assert_eq!(i64::from(got), brute, "cell {c},{r}");
+            }
+        }
+    }
+
+    #[test]
+    fn clearance_is_a_lower_bound() {
+        let m = grid(30, 30, &[(10, 10), (20, 5), (3, 25)]);
+        let mut rng = crate::rng::Rng::new(9);
+        for _ in 0..2000 {
+            let (x, y) = (rng.uniform_range(-1.0, 4.0), rng.uniform_range(-1.0, 4.0));
+            let cl = m.clearance(x, y);
+            let exact = [(10, 10), (20, 5), (3, 25)]
+                .iter()
+                .map(|&(c, r)| {
+                    let (x0, y0) = (c as f64 * 0.1, r as f64 * 0.1);
+                    let ex = (x0 - x).max(x - (x0 + 0.1)).max(0.0);
+                    let ey = (y0 - y).max(y - (y0 + 0.1)).max(0.0);
+                    libm::hypot(ex, ey)
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!(cl <= exact + 1e-12, "({x},{y}) clearance {cl} > {exact}");
+        }
+        assert_eq!(m.clearance(1.05, 1.05), 0.0);
+    }
+
+    #[test]
+    fn edt_matches_brute_force() {
+        let occ = [(2, 3), (10, 1), (7, 7), (0, 8)];
+        let m = grid(12, 9, &occ);
+        let df = m.distance_field();
+        for r in 0..9 {
+            for c in 0..12 {
+                let best = occ
+                    .iter()
+                    .map(|&(oc, or)| {
+                        let (a, b) = (oc as i64 - c as i64, or as i64 - r as i64);
+                        (a * a + b * b) as f64
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(df[r * 12 + c], 0.1 * libm::sqrt(best));
+            }
+        }
+        let empty = grid(4, 4, &[]);
+        assert!(empty.distance_field().iter().all(|d| d.is_infinite()));
+    }
+
+    #[test]
+    fn yaw_round_trip_and_hash() {
+        let mut g = vec![false; 20 * 10];
+        g[3 * 20 + 5] = true;
+        let m = Map::from_grid("y", 20, 10, 0.5, Pose::new(1.0, 2.0, 0.7), g.clone()).unwrap();
+        let (x, y) = m.grid_to_world(5.5, 3.5);
+        assert!(m.occupied_at(x, y));
+        let (gx, gy) = m.world_to_grid(x, y);
+        assert!((gx - 5.5).abs() < 1e-12 && (gy - 3.5).abs() < 1e-12);
+        let m2 = Map::from_grid("other name", 20, 10, 0.5, Pose::new(1.0, 2.0, 0.7), g).unwrap();
+        assert_eq!(m.content_hash(), m2.content_hash());
+        let m3 = grid(20, 10, &[(5, 3)]);
+        assert_ne!(m.content_hash(), m3.content_hash());
+    }
+}
