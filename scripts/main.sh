@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# The main job: builds Paddock and runs it on the default map, embedded (no broker).
+# The main job: builds Paddock, then tunes the pure-pursuit driver with CMA-ES on the
+# default map, embedded (no broker); results and plots go to tune-out/.
 # Extra arguments go to the command, e.g. `scripts/main.sh --map quarry`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/paddock/target}"
 cargo build --release --locked -p paddock
-exec "$CARGO_TARGET_DIR/release/paddock" demo "$@"
+exec "$CARGO_TARGET_DIR/release/paddock" tune "$@"

@@ -54,7 +54,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 obs.poses_y[i],
                 obs.poses_theta[i],
             );
-            actions[i] = d.act(pose, obs.linear_vels_x[i]);
+            actions[i] = d.act_pose(pose, obs.linear_vels_x[i]);
         }
         world.step(&actions)?;
         if world.done() {

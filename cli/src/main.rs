@@ -3,6 +3,9 @@
 mod demo;
 mod maps_generate;
 mod perf;
+mod plots;
+mod rollout_cmd;
+mod tune_cmd;
 
 use std::path::PathBuf;
 
@@ -22,10 +25,21 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Tune a driver's parameters with CMA-ES for lap time (the main job).
+    Tune(tune_cmd::TuneArgs),
     /// Measure the simulator's speed on one thread (agent-steps/s, LIDAR rays/s).
     Perf(perf::PerfArgs),
     /// Drive a demo episode with the pure-pursuit driver and print lap times.
     Demo(demo::DemoArgs),
+    /// Run a batch of seeded episodes of one driver and print per-episode results.
+    Rollout(rollout_cmd::RolloutArgs),
+    /// Run benchmark task b1 (time trial), b2 (unknown obstacles) or b3 (head to head).
+    Benchmark(rollout_cmd::BenchmarkArgs),
+    /// List the drivers and their tunable parameters.
+    Drivers {
+        #[arg(long)]
+        json: bool,
+    },
     /// Shipped maps and the track generator.
     Maps {
         #[command(subcommand)]
@@ -57,8 +71,12 @@ fn main() {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Tune(args) => tune_cmd::run(&args),
         Command::Perf(args) => perf::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Rollout(args) => rollout_cmd::rollout(&args),
+        Command::Benchmark(args) => rollout_cmd::benchmark(&args),
+        Command::Drivers { json } => list_drivers(json),
         Command::Maps { command } => match command {
             MapsCommand::List { dirs, json } => maps_list(&dirs, json),
             MapsCommand::Generate(args) => maps_generate::run(&args),
@@ -144,5 +162,32 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
         );
     }
     println!("(* = the default map)");
+    Ok(())
+}
+
+fn list_drivers(json: bool) -> Result<()> {
+    let drivers = paddock_policy::drivers();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&drivers)?);
+        return Ok(());
+    }
+    for d in drivers {
+        println!(
+            "{} ({}){}",
+            d.name,
+            d.about,
+            if d.sensors.lidar {
+                ", uses the LIDAR"
+            } else {
+                ""
+            }
+        );
+        for p in &d.params {
+            println!(
+                "  {:<18} {:>8} in [{}, {}]  {}",
+                p.name, p.default, p.lo, p.hi, p.doc
+            );
+        }
+    }
     Ok(())
 }

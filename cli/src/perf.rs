@@ -74,7 +74,7 @@ fn drive(
     let mut seed = 0u64;
     while busy < budget {
         world.reset(seed, &Starts::Random)?;
-        drivers.iter_mut().for_each(PurePursuit::reset);
+        drivers.iter_mut().for_each(paddock_policy::Driver::reset);
         seed += 1;
         for step in 0..3000u32 {
             let obs = world.observation()?;
@@ -83,7 +83,7 @@ fn drive(
                 if step.is_multiple_of(16) && poses.len() < 4096 {
                     poses.push(pose);
                 }
-                actions[i] = d.act(pose, obs.linear_vels_x[i]);
+                actions[i] = d.act_pose(pose, obs.linear_vels_x[i]);
             }
             let t0 = Instant::now();
             world.step(&actions)?;

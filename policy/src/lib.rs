@@ -1,151 +1,215 @@
 //! # paddock-policy: drivers
 //!
-//! A driver turns one car's observation into an action. Drivers are pure apart from
-//! their own small memory (a search hint), so a rollout stays a pure function of its
-//! scenario and seed.
+//! A driver turns one car's view of the world into an action. Drivers are pure apart from
+//! their own small memory (search hints, planner state), reset at every episode, so a
+//! rollout stays a pure function of its scenario and seed.
+//!
+//! Every driver has a name, documented parameters with defaults and bounds (a
+//! [`ParamSpec`] list: the vector CMA-ES tunes), and declares the sensors it needs, so a
+//! rollout whose drivers do not read the LIDAR skips the scan.
 
-use paddock_sim::geometry::Pose;
-use paddock_sim::track::{RacelinePoint, Track};
-use paddock_sim::world::Action;
+pub mod follow_gap;
+pub mod lattice;
+pub mod mlp;
+pub mod pure_pursuit;
+pub mod refpath;
+
+use std::sync::Arc;
+
+use paddock_sim::params::VehicleParams;
+use paddock_sim::track::Circuit;
+use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
-/// Pure pursuit on a raceline: steer towards the raceline point one lookahead distance
-/// ahead; drive the raceline's speed profile scaled by `speed_scale`.
+pub use follow_gap::{FollowTheGap, FollowTheGapParams};
+pub use lattice::{Lattice, LatticeParams};
+pub use mlp::{Mlp, MlpConfig, MlpDriver};
+pub use pure_pursuit::{PurePursuit, PurePursuitParams};
+
+/// Errors building a driver; each names the driver, the parameter and the value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PolicyError {
+    #[error("unknown driver {name:?} (known: {known})")]
+    UnknownDriver { name: String, known: String },
+    #[error("driver {driver}: expected {expected} parameters, got {got}")]
+    ParamCount {
+        driver: String,
+        expected: usize,
+        got: usize,
+    },
+    #[error("driver {driver}: unknown parameter {name:?} (known: {known})")]
+    UnknownParam {
+        driver: String,
+        name: String,
+        known: String,
+    },
+    #[error("driver {driver}: parameter {name} = {value} is outside [{lo}, {hi}]")]
+    OutOfBounds {
+        driver: String,
+        name: String,
+        value: f64,
+        lo: f64,
+        hi: f64,
+    },
+    #[error("driver {driver}: {message}")]
+    Invalid { driver: String, message: String },
+}
+
+/// One tunable parameter of a driver.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PurePursuitParams {
-    /// Lookahead at standstill, metres.
-    pub lookahead_min: f64,
-    /// Lookahead growth with speed, seconds (lookahead = min + gain * v).
-    pub lookahead_gain: f64,
-    /// Multiplies the raceline's speed profile.
-    pub speed_scale: f64,
-    /// Upper bound on the commanded speed, m/s.
-    pub max_speed: f64,
-    /// Wheelbase used by the steering law, metres (lf + lr of the default car).
-    pub wheelbase: f64,
+pub struct ParamSpec {
+    pub name: &'static str,
+    pub default: f64,
+    pub lo: f64,
+    pub hi: f64,
+    pub doc: &'static str,
 }
 
-impl Default for PurePursuitParams {
-    fn default() -> Self {
-        Self {
-            lookahead_min: 0.8,
-            lookahead_gain: 0.15,
-            speed_scale: 0.6,
-            max_speed: 12.0,
-            wheelbase: 0.3302,
-        }
-    }
+/// The sensors a driver reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Sensors {
+    pub lidar: bool,
 }
 
-#[derive(Debug, Clone)]
-pub struct PurePursuit {
-    pub params: PurePursuitParams,
-    path: Vec<RacelinePoint>,
-    /// Cumulative arc length of `path`, closing the loop.
-    cum: Vec<f64>,
-    hint: Option<usize>,
+/// A driver: observation -> action for agent `me`.
+///
+/// `obs` is the whole world's observation (every car's pose and speed, so planners can
+/// see their opponents); a driver whose [`Sensors`] omit the LIDAR must not read the scans
+/// (they are zeros then).
+pub trait Driver: Send {
+    /// The registry name (`pure-pursuit`, ...).
+    fn name(&self) -> &'static str;
+    fn sensors(&self) -> Sensors;
+    /// Forget per-episode memory.
+    fn reset(&mut self);
+    fn act(&mut self, obs: &Observation, me: usize) -> Action;
 }
 
-impl PurePursuit {
-    /// Follow the track's raceline, or its centerline (at 5 m/s) if it has none.
-    pub fn new(track: &Track, params: PurePursuitParams) -> Self {
-        let path: Vec<RacelinePoint> = match track.raceline() {
-            Some(r) => r.to_vec(),
-            None => track
-                .points()
-                .iter()
-                .map(|p| RacelinePoint {
-                    s: 0.0,
-                    x: p.x,
-                    y: p.y,
-                    psi: 0.0,
-                    kappa: 0.0,
-                    vx: 5.0,
-                    ax: 0.0,
-                })
-                .collect(),
-        };
-        let mut cum = Vec::with_capacity(path.len() + 1);
-        let mut s = 0.0;
-        for i in 0..path.len() {
-            cum.push(s);
-            let (a, b) = (&path[i], &path[(i + 1) % path.len()]);
-            s += libm::hypot(b.x - a.x, b.y - a.y);
-        }
-        cum.push(s);
-        Self {
-            params,
-            path,
-            cum,
-            hint: None,
-        }
-    }
-
-    /// Forget the search hint (call at episode reset).
-    pub fn reset(&mut self) {
-        self.hint = None;
-    }
-
-    fn nearest(&mut self, x: f64, y: f64) -> usize {
-        let n = self.path.len();
-        let d2 = |i: usize| {
-            let p = &self.path[i];
-            (p.x - x) * (p.x - x) + (p.y - y) * (p.y - y)
-        };
-        let best = match self.hint {
-            Some(h) => {
-                // walk downhill from the hint in both directions
-                let mut best = h;
-                loop {
-                    let next = (best + 1) % n;
-                    let prev = (best + n - 1) % n;
-                    if d2(next) < d2(best) {
-                        best = next;
-                    } else if d2(prev) < d2(best) {
-                        best = prev;
-                    } else {
-                        break;
-                    }
-                }
-                // a jump (reset, spin) makes the local answer far off: search globally
-                if d2(best) > 4.0 { None } else { Some(best) }
-            }
-            None => None,
-        };
-        let best = best.unwrap_or_else(|| {
-            (0..n)
-                .min_by(|&a, &b| d2(a).total_cmp(&d2(b)).then(a.cmp(&b)))
-                .unwrap_or(0)
+/// Validate `values` against `specs`: count, finiteness and bounds, naming the offender.
+pub fn check_params(driver: &str, specs: &[ParamSpec], values: &[f64]) -> Result<(), PolicyError> {
+    if values.len() != specs.len() {
+        return Err(PolicyError::ParamCount {
+            driver: driver.into(),
+            expected: specs.len(),
+            got: values.len(),
         });
-        self.hint = Some(best);
-        best
     }
-
-    /// The action for a car at `pose` moving at `speed` (m/s).
-    pub fn act(&mut self, pose: Pose, speed: f64) -> Action {
-        let n = self.path.len();
-        let i = self.nearest(pose.x, pose.y);
-        let p = &self.params;
-        let lookahead = p.lookahead_min + p.lookahead_gain * speed.max(0.0);
-        // the first path point at least `lookahead` ahead along the path
-        let total = self.cum[n];
-        let mut j = i;
-        for _ in 0..n {
-            let along = (self.cum[j] - self.cum[i]).rem_euclid(total);
-            let (tx, ty) = (self.path[j].x, self.path[j].y);
-            if along >= lookahead || libm::hypot(tx - pose.x, ty - pose.y) >= lookahead {
-                break;
-            }
-            j = (j + 1) % n;
+    for (s, &v) in specs.iter().zip(values) {
+        if !(v.is_finite() && v >= s.lo && v <= s.hi) {
+            return Err(PolicyError::OutOfBounds {
+                driver: driver.into(),
+                name: s.name.into(),
+                value: v,
+                lo: s.lo,
+                hi: s.hi,
+            });
         }
-        let target = &self.path[j];
-        let (dx, dy) = (target.x - pose.x, target.y - pose.y);
-        let (s, c) = libm::sincos(pose.theta);
-        let local_y = -s * dx + c * dy;
-        let dist2 = (dx * dx + dy * dy).max(1e-6);
-        let curvature = 2.0 * local_y / dist2;
-        let steer = libm::atan(p.wheelbase * curvature);
-        let speed_cmd = (self.path[i].vx * p.speed_scale).min(p.max_speed);
-        Action::new(steer, speed_cmd)
+    }
+    Ok(())
+}
+
+/// Defaults of `specs` with the named overrides applied (`name=value` pairs).
+pub fn params_from_overrides(
+    driver: &str,
+    specs: &[ParamSpec],
+    overrides: &[(String, f64)],
+) -> Result<Vec<f64>, PolicyError> {
+    let mut v: Vec<f64> = specs.iter().map(|s| s.default).collect();
+    for (name, value) in overrides {
+        let Some(i) = specs.iter().position(|s| s.name == name) else {
+            return Err(PolicyError::UnknownParam {
+                driver: driver.into(),
+                name: name.clone(),
+                known: specs.iter().map(|s| s.name).collect::<Vec<_>>().join(", "),
+            });
+        };
+        v[i] = *value;
+    }
+    check_params(driver, specs, &v)?;
+    Ok(v)
+}
+
+/// What the registry knows of a driver without building one.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DriverInfo {
+    pub name: &'static str,
+    pub about: &'static str,
+    pub sensors: Sensors,
+    pub params: Vec<ParamSpec>,
+}
+
+/// Every driver the registry can build.
+pub fn drivers() -> Vec<DriverInfo> {
+    vec![
+        DriverInfo {
+            name: pure_pursuit::NAME,
+            about: pure_pursuit::ABOUT,
+            sensors: Sensors { lidar: false },
+            params: pure_pursuit::param_specs(),
+        },
+        DriverInfo {
+            name: follow_gap::NAME,
+            about: follow_gap::ABOUT,
+            sensors: Sensors { lidar: true },
+            params: follow_gap::param_specs(),
+        },
+        DriverInfo {
+            name: mlp::NAME,
+            about: mlp::ABOUT,
+            sensors: Sensors { lidar: true },
+            params: mlp::param_specs(),
+        },
+        DriverInfo {
+            name: lattice::NAME,
+            about: lattice::ABOUT,
+            sensors: Sensors { lidar: true },
+            params: lattice::param_specs(),
+        },
+    ]
+}
+
+/// Look a driver up by name.
+pub fn driver_info(name: &str) -> Result<DriverInfo, PolicyError> {
+    drivers()
+        .into_iter()
+        .find(|d| d.name == name)
+        .ok_or_else(|| PolicyError::UnknownDriver {
+            name: name.into(),
+            known: drivers()
+                .iter()
+                .map(|d| d.name)
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+}
+
+/// Build driver `name` with the parameter vector `params` (in [`DriverInfo::params`]
+/// order) for a car with `vehicle` parameters on `circuit`.
+pub fn build_driver(
+    name: &str,
+    params: &[f64],
+    circuit: &Arc<Circuit>,
+    vehicle: &VehicleParams,
+) -> Result<Box<dyn Driver>, PolicyError> {
+    let info = driver_info(name)?;
+    check_params(name, &info.params, params)?;
+    match info.name {
+        pure_pursuit::NAME => Ok(Box::new(PurePursuit::new(
+            &circuit.track,
+            PurePursuitParams::from_vector(params, vehicle),
+        ))),
+        follow_gap::NAME => Ok(Box::new(FollowTheGap::new(
+            FollowTheGapParams::from_vector(params, vehicle)?,
+        ))),
+        mlp::NAME => Ok(Box::new(MlpDriver::new(
+            Mlp::from_vector(&MlpConfig::default(), params)?,
+            &circuit.track,
+            vehicle,
+        ))),
+        lattice::NAME => Ok(Box::new(Lattice::new(
+            circuit,
+            LatticeParams::from_vector(params, vehicle)?,
+        ))),
+        _ => unreachable!("every registered driver is built above"),
     }
 }

@@ -302,7 +302,8 @@ fn origin_yaw_is_honoured() {
     assert!((out[1] - 2.0).abs() < 1e-9, "{out:?}");
 }
 
-/// Rays per second of `scan` and `scan_reference` from centerline poses of real tracks.
+/// Rays per second of `scan` and `scan_reference` from centerline poses of real tracks
+/// and of Paddock's shipped maps (`maps/`, in the repository).
 /// `cargo test -p paddock-sim --release --test maps -- --ignored --nocapture`
 #[test]
 #[ignore = "measurement; run in release with --nocapture"]
@@ -310,8 +311,13 @@ fn lidar_throughput_on_tracks() {
     let Some(shared) = shared_dir() else { return };
     let lidar = Lidar::new(LidarConfig::default());
     let mut out = vec![0.0; 1080];
-    for (name, yaml, center) in tracks(&shared) {
-        if !["Spielberg", "Monza", "Silverstone", "Austin"].contains(&name.as_str()) {
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut all = tracks(&shipped);
+    all.extend(tracks(&shared));
+    for (name, yaml, center) in all {
+        if !["Spielberg", "Monza", "Silverstone", "Austin"].contains(&name.as_str())
+            && !["lakeside", "harbour", "quarry"].contains(&name.as_str())
+        {
             continue;
         }
         let map = Map::load(&yaml).unwrap();

@@ -1,10 +1,15 @@
-//! Exact grid ray marching accelerated by the Chebyshev clearance.
+//! Exact grid ray marching accelerated by the quadrant clearance.
 //!
 //! A ray is tracked by its current cell (c, r) and the parameter t (in cells) at which it
 //! entered that cell; every boundary crossing is computed in closed form from the ray
-//! origin, `t = (boundary - g) / d`, so no error accumulates along the ray. In a free cell
-//! whose clearance says that the `(2k+1) x (2k+1)` block around it is free, the ray jumps
-//! to the exit of that block; with k = 0 that is one exact grid-traversal step. A ray
+//! origin, `t = (boundary - g) / d`, so no error accumulates along the ray. A ray with
+//! direction signs (sx, sy) reads the clearance table of its own quadrant: in a free cell
+//! whose value says that the square `[c, c + k sx] x [r, r + k sy]` is free, the ray
+//! (which moves monotonically away from the square's corner cell) can only leave it
+//! through its far x or far y side, and jumps there; with k = 0 that is one exact
+//! grid-traversal step. The square ahead of the ray is not limited by the walls beside
+//! or behind it, so rays along a corridor take much longer jumps than with a block
+//! centred on the cell. A ray
 //! stops in the first occupied cell (hit at its entry t), past `tmax`, or on the padding
 //! around the map (it left the map rectangle, which is convex: it never comes back).
 //!
@@ -26,11 +31,11 @@ pub(super) const CHUNK: usize = 256;
 /// Rays per SIMD packet (four f64 lanes of AVX).
 const PACKET: usize = 4;
 
-/// Whether the AVX march can run: the CPU has AVX, and the map's cell indices fit the
+/// Whether the AVX march can run: the CPU has AVX, and the map's table indices fit the
 /// i32 lanes it converts them to.
 #[cfg(target_arch = "x86_64")]
 pub(super) fn avx_usable(map: &Map) -> bool {
-    map.chebyshev().len() < i32::MAX as usize && std::arch::is_x86_feature_detected!("avx")
+    map.quadrant_clearance().len() < i32::MAX as usize && std::arch::is_x86_feature_detected!("avx")
 }
 
 /// 1.5 * 2^52: adding and subtracting it rounds a float of magnitude < 2^51 to an integer.
@@ -57,6 +62,8 @@ pub(super) struct Batch {
     sy: [f64; CHUNK],
     px: [f64; CHUNK],
     py: [f64; CHUNK],
+    /// Offset of the ray's quadrant of map cell (0, 0) in the clearance table.
+    base: [f64; CHUNK],
     /// Current cell (map coordinates; -1 and width / height are the padding) and the ray
     /// parameter at which the ray entered it.
     c: [f64; CHUNK],
@@ -79,6 +86,7 @@ impl Batch {
             sy: [0.0; CHUNK],
             px: [0.0; CHUNK],
             py: [0.0; CHUNK],
+            base: [0.0; CHUNK],
             c: [0.0; CHUNK],
             r: [0.0; CHUNK],
             t: [0.0; CHUNK],
@@ -108,7 +116,7 @@ impl Batch {
             self.dy[i] = 0.0;
             self.tmax[i] = -1.0;
         }
-        self.prepare(gx, gy, w, h, padded);
+        self.prepare(map, gx, gy, padded);
         #[cfg(target_arch = "x86_64")]
         {
             // `AVX` selects the code path at compile time (so that callers compiled with AVX
@@ -126,9 +134,8 @@ impl Batch {
 
     /// Advances rays `0..n` until each stops (portable version).
     fn march_scalar(&mut self, map: &Map, gx: f64, gy: f64, n: usize) {
-        let cheb = map.chebyshev();
+        let quadrants = map.quadrant_clearance();
         let wp = map.width() as f64 + 2.0;
-        let base = wp + 1.0;
         let mut n_live = n;
         while n_live > 0 {
             let mut kept = 0;
@@ -136,22 +143,24 @@ impl Batch {
                 let i = usize::from(self.live[j]);
                 let (c, r, t) = (self.c[i], self.r[i], self.t[i]);
                 // Rays only ever sit on cells of the padded grid: the index is in range.
-                let v = cheb[(r * wp + c + base) as usize];
+                let v = quadrants[((r * wp + c) * 4.0 + self.base[i]) as usize];
                 let stop = (v == 0) | (t > self.tmax[i]);
-                // Exit of the free block of radius k (garbage when stopped: discarded).
+                // Exit of the free square of side k + 1 (garbage when stopped: discarded).
                 let k = f64::from(v) - 1.0;
                 let tx = ((c + k * self.sx[i] + self.px[i]) - gx) * self.inv_dx[i];
                 let ty = ((r + k * self.sy[i] + self.py[i]) - gy) * self.inv_dy[i];
                 let exit_x = tx < ty;
                 let tn = if exit_x { tx } else { ty };
-                // The cell on the other axis at the exit point; bounding it to the block
+                // The cell on the other axis at the exit point; bounding it to the square
+                // ([o_c, o_c + k] or [o_c - k, o_c] as the ray goes up or down that axis)
                 // only absorbs rounding.
-                let (o_g, o_d, o_c) = if exit_x {
-                    (gy, self.dy[i], r)
+                let (o_g, o_d, o_c, o_p) = if exit_x {
+                    (gy, self.dy[i], r, self.py[i])
                 } else {
-                    (gx, self.dx[i], c)
+                    (gx, self.dx[i], c, self.px[i])
                 };
-                let (lo, hi) = (o_c - k, o_c + k);
+                let hi = o_c + k * o_p;
+                let lo = hi - k;
                 let fl = floor_small(o_g + tn * o_d);
                 let other = if fl > lo { fl } else { lo };
                 let other = if other < hi { other } else { hi };
@@ -188,7 +197,10 @@ impl Batch {
     /// Per-ray constants and the first cell: the origin's cell, or where the ray enters
     /// the map rectangle (a ray that never does starts on the padding, i.e. finished).
     #[inline(always)]
-    fn prepare(&mut self, gx: f64, gy: f64, w: f64, h: f64, n: usize) {
+    fn prepare(&mut self, map: &Map, gx: f64, gy: f64, n: usize) {
+        let (w, h) = (map.width() as f64, map.height() as f64);
+        // Map cell (0, 0) in the padded grid.
+        let base0 = 4.0 * (map.width() as f64 + 3.0);
         for i in 0..n {
             // -0.0 would give an inverse of -infinity and a wrong stepping direction.
             let dx = if self.dx[i] == 0.0 { 0.0 } else { self.dx[i] };
@@ -201,6 +213,9 @@ impl Batch {
             self.px[i] = if dx >= 0.0 { 1.0 } else { 0.0 };
             self.sy[i] = if dy >= 0.0 { 1.0 } else { -1.0 };
             self.py[i] = if dy >= 0.0 { 1.0 } else { 0.0 };
+            // Quadrant (x_neg as usize) | (y_neg as usize) << 1, as `Map` lays them out.
+            let quadrant = (1.0 - self.px[i]) + 2.0 * (1.0 - self.py[i]);
+            self.base[i] = base0 + quadrant;
             self.live[i] = i as u16;
         }
         if gx >= 0.0 && gy >= 0.0 && gx < w && gy < h {
@@ -250,10 +265,9 @@ impl Batch {
     unsafe fn march_avx(&mut self, map: &Map, gx: f64, gy: f64, n: usize) {
         use std::arch::x86_64::*;
         debug_assert!(n & (PACKET - 1) == 0 && n <= CHUNK);
-        let cheb = map.chebyshev();
+        let quadrants = map.quadrant_clearance();
         let wp = map.width() as f64 + 2.0;
         let v_wp = _mm256_set1_pd(wp);
-        let v_base = _mm256_set1_pd(wp + 1.0);
         let v_gx = _mm256_set1_pd(gx);
         let v_gy = _mm256_set1_pd(gy);
         let one = _mm256_set1_pd(1.0);
@@ -270,16 +284,19 @@ impl Batch {
                 unsafe { _mm256_storeu_pd($a[$o..$o + PACKET].as_mut_ptr(), $v) }
             };
         }
-        // The clearance of the four cells (c, r); rays only ever sit on cells of the
-        // padded grid, so the indices are in range.
-        let clearance = |c: __m256d, r: __m256d| -> __m256d {
-            let idx = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(r, v_wp), c), v_base);
+        // The clearance of the four cells (c, r), each in its ray's quadrant (offsets
+        // `base`); rays only ever sit on cells of the padded grid, so the indices are in
+        // range.
+        let four = _mm256_set1_pd(4.0);
+        let clearance = |c: __m256d, r: __m256d, base: __m256d| -> __m256d {
+            let cell = _mm256_add_pd(_mm256_mul_pd(r, v_wp), c);
+            let idx = _mm256_add_pd(_mm256_mul_pd(cell, four), base);
             let ii = _mm256_cvttpd_epi32(idx);
             _mm256_cvtepi32_pd(_mm_setr_epi32(
-                i32::from(cheb[_mm_cvtsi128_si32(ii) as usize]),
-                i32::from(cheb[_mm_extract_epi32::<1>(ii) as usize]),
-                i32::from(cheb[_mm_extract_epi32::<2>(ii) as usize]),
-                i32::from(cheb[_mm_extract_epi32::<3>(ii) as usize]),
+                i32::from(quadrants[_mm_cvtsi128_si32(ii) as usize]),
+                i32::from(quadrants[_mm_extract_epi32::<1>(ii) as usize]),
+                i32::from(quadrants[_mm_extract_epi32::<2>(ii) as usize]),
+                i32::from(quadrants[_mm_extract_epi32::<3>(ii) as usize]),
             ))
         };
         // A lane has stopped in an occupied cell or on the padding (clearance 0) or past
@@ -296,7 +313,7 @@ impl Batch {
         let mut live = [0u16; CHUNK / PACKET];
         for p in 0..n / PACKET {
             let o = p * PACKET;
-            let v = clearance(ld!(self.c, o), ld!(self.r, o));
+            let v = clearance(ld!(self.c, o), ld!(self.r, o), ld!(self.base, o));
             st!(self.v, o, v);
             let stop = stopped(v, ld!(self.t, o), ld!(self.tmax, o));
             live[n_live] = p as u16;
@@ -316,8 +333,10 @@ impl Batch {
                 let k = _mm256_sub_pd(v, one);
                 let sx = ld!(self.sx, o);
                 let sy = ld!(self.sy, o);
-                let bx = _mm256_add_pd(_mm256_add_pd(c, _mm256_mul_pd(k, sx)), ld!(self.px, o));
-                let by = _mm256_add_pd(_mm256_add_pd(r, _mm256_mul_pd(k, sy)), ld!(self.py, o));
+                let px = ld!(self.px, o);
+                let py = ld!(self.py, o);
+                let bx = _mm256_add_pd(_mm256_add_pd(c, _mm256_mul_pd(k, sx)), px);
+                let by = _mm256_add_pd(_mm256_add_pd(r, _mm256_mul_pd(k, sy)), py);
                 let tx = _mm256_mul_pd(_mm256_sub_pd(bx, v_gx), ld!(self.inv_dx, o));
                 let ty = _mm256_mul_pd(_mm256_sub_pd(by, v_gy), ld!(self.inv_dy, o));
                 let exit_x = _mm256_cmp_pd::<_CMP_LT_OQ>(tx, ty);
@@ -325,10 +344,11 @@ impl Batch {
                 let o_g = _mm256_blendv_pd(v_gx, v_gy, exit_x);
                 let o_d = _mm256_blendv_pd(ld!(self.dx, o), ld!(self.dy, o), exit_x);
                 let o_c = _mm256_blendv_pd(c, r, exit_x);
+                let o_p = _mm256_blendv_pd(px, py, exit_x);
                 let fl = _mm256_floor_pd(_mm256_add_pd(o_g, _mm256_mul_pd(tn, o_d)));
                 // max(a, b) = a > b ? a : b and min(a, b) = a < b ? a : b: the scalar forms.
-                let lo = _mm256_sub_pd(o_c, k);
-                let hi = _mm256_add_pd(o_c, k);
+                let hi = _mm256_add_pd(o_c, _mm256_mul_pd(k, o_p));
+                let lo = _mm256_sub_pd(hi, k);
                 let other = _mm256_min_pd(_mm256_max_pd(fl, lo), hi);
                 let k1 = _mm256_add_pd(k, one);
                 let nc = _mm256_blendv_pd(other, _mm256_add_pd(c, _mm256_mul_pd(k1, sx)), exit_x);
@@ -337,7 +357,7 @@ impl Batch {
                 let c = _mm256_blendv_pd(nc, c, stop);
                 let r = _mm256_blendv_pd(nr, r, stop);
                 let t = _mm256_blendv_pd(tn, t, stop);
-                let v = clearance(c, r);
+                let v = clearance(c, r, ld!(self.base, o));
                 st!(self.c, o, c);
                 st!(self.r, o, r);
                 st!(self.t, o, t);

@@ -3,11 +3,12 @@
 //!
 //! [`Lidar::scan`] is exact: each beam returns the distance to the first occupied cell
 //! square or box side it meets (clamped to `max_range`), computed from the ray origin in
-//! closed form, with no marching error. It is fast because the map stores, per free cell,
-//! the radius of the all-free square block around it (Chebyshev clearance): a ray jumps
-//! straight to the exit of that block, and only next to walls does it take exact
-//! one-cell grid-traversal steps (Amanatides-Woo). Several beams are traced interleaved so
-//! their memory loads overlap. [`Lidar::scan_reference`] reproduces the reference's
+//! closed form, with no marching error. It is fast because the map stores, per free cell
+//! and per quadrant of directions, the side of the largest all-free square that has the
+//! cell as its corner and extends that way: a ray jumps straight to the far side of the
+//! square ahead of it, and only when heading into a wall does it take exact one-cell
+//! grid-traversal steps (Amanatides-Woo). Several beams are traced interleaved so their
+//! memory loads overlap. [`Lidar::scan_reference`] reproduces the reference's
 //! sphere tracing on the distance transform, including its angle quantisation, for
 //! conformance with f1tenth_gym (see `shared/conformance/f1tenth_gym_scan`).
 

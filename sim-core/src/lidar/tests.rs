@@ -147,11 +147,12 @@ fn noise_is_seeded_and_small() {
     );
 }
 
-/// A random grid: scattered cells and a few blocks.
+/// A random grid: scattered cells (sparse or dense) and a few blocks.
 fn random_map(rng: &mut Rng, w: usize, h: usize) -> Map {
     let mut g = vec![false; w * h];
+    let density = if rng.uniform() < 0.5 { 0.04 } else { 0.003 };
     for cell in g.iter_mut() {
-        *cell = rng.uniform() < 0.04;
+        *cell = rng.uniform() < density;
     }
     for _ in 0..6 {
         let (c0, r0) = (rng.below(w as u64) as usize, rng.below(h as u64) as usize);
@@ -165,6 +166,52 @@ fn random_map(rng: &mut Rng, w: usize, h: usize) -> Map {
     Map::from_grid("random", w, h, 0.05, Pose::new(-1.0, 2.0, 0.0), g).unwrap()
 }
 
+/// Casts `dirs` (dx, dy, tmax) from (gx, gy) with the batch march, portable and (where
+/// the CPU has it) AVX; asserts that the portable one equals [`cast_simple`] to 1e-9 cells
+/// and that the AVX one equals it bit for bit. Returns the number of rays.
+fn check_rays(batch: &mut Batch, map: &Map, gx: f64, gy: f64, dirs: &[(f64, f64, f64)]) -> usize {
+    let n = dirs.len();
+    let run = |batch: &mut Batch, avx: bool| -> Vec<f64> {
+        for (i, &(dx, dy, tmax)) in dirs.iter().enumerate() {
+            batch.dx[i] = dx;
+            batch.dy[i] = dy;
+            batch.tmax[i] = tmax;
+        }
+        let mut out = vec![0.0; n];
+        if avx {
+            batch.cast::<true>(map, gx, gy, n, &mut out);
+        } else {
+            batch.cast::<false>(map, gx, gy, n, &mut out);
+        }
+        out
+    };
+    let portable = run(batch, false);
+    let (w, h) = (map.width(), map.height());
+    for (i, &(dx, dy, tmax)) in dirs.iter().enumerate() {
+        let want = cast_simple(map, gx, gy, dx, dy, tmax);
+        let got = portable[i];
+        let ok = if want.is_infinite() {
+            got.is_infinite()
+        } else {
+            (got - want).abs() <= 1e-9
+        };
+        assert!(
+            ok,
+            "map {w}x{h} from ({gx}, {gy}) dir ({dx}, {dy}) tmax {tmax}: {got} vs {want}"
+        );
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if march::avx_usable(map) {
+            let simd = run(batch, true);
+            for (a, b) in simd.iter().zip(&portable) {
+                assert_eq!(a.to_bits(), b.to_bits());
+            }
+        }
+    }
+    n
+}
+
 /// The accelerated march (both the portable and, where the CPU has it, the AVX version)
 /// equals a plain cell-by-cell DDA, from origins on and off the map, to 1e-9 cells; and
 /// the two versions agree bit for bit.
@@ -173,25 +220,40 @@ fn march_equals_simple_dda_on_random_grids() {
     let mut rng = Rng::new(2024);
     let mut batch = Batch::new();
     let mut rays = 0;
-    for _ in 0..12 {
+    for _ in 0..16 {
         let (w, h) = (20 + rng.below(80) as usize, 20 + rng.below(80) as usize);
         let map = random_map(&mut rng, w, h);
-        for _ in 0..4 {
-            let gx = rng.uniform_range(-10.0, w as f64 + 10.0);
-            let gy = rng.uniform_range(-10.0, h as f64 + 10.0);
+        for trial in 0..6 {
+            // Origins anywhere, off the map included (every side and corner), some on
+            // cell corners exactly.
+            let mut gx = rng.uniform_range(-10.0, w as f64 + 10.0);
+            let mut gy = rng.uniform_range(-10.0, h as f64 + 10.0);
+            let on_corner = trial == 5;
+            if on_corner {
+                gx = gx.floor();
+                gy = gy.floor();
+            }
             let n = 1 + rng.below(CHUNK as u64) as usize;
             let mut dirs = Vec::new();
+            let d = std::f64::consts::FRAC_1_SQRT_2;
             for i in 0..n {
-                let (dx, dy) = match i % 17 {
-                    // Exactly axis-aligned and diagonal rays, including -0.0 components.
+                let (dx, dy) = match i % 23 {
+                    // Exactly axis-aligned and diagonal rays in every quadrant, including
+                    // -0.0 components, and nearly axis-aligned ones.
                     0 => (1.0, 0.0),
                     1 => (-1.0, -0.0),
                     2 => (0.0, 1.0),
                     3 => (-0.0, -1.0),
-                    4 => (
-                        std::f64::consts::FRAC_1_SQRT_2,
-                        std::f64::consts::FRAC_1_SQRT_2,
-                    ),
+                    // A diagonal from a cell corner runs through corners only, touching
+                    // cells at single points, where which of them counts is a tie-break.
+                    4..=7 if on_corner => (0.6, -0.8),
+                    4 => (d, d),
+                    5 => (-d, d),
+                    6 => (d, -d),
+                    7 => (-d, -d),
+                    8 => (1.0, -1e-12),
+                    9 => (-1e-12, 1.0),
+                    10 => (-1.0, 1e-12),
                     _ => {
                         let (s, c) = libm::sincos(rng.uniform_range(-4.0, 4.0));
                         (c, s)
@@ -204,47 +266,55 @@ fn march_equals_simple_dda_on_random_grids() {
                 };
                 dirs.push((dx, dy, tmax));
             }
-            let run = |batch: &mut Batch, avx: bool| -> Vec<f64> {
-                for (i, &(dx, dy, tmax)) in dirs.iter().enumerate() {
-                    batch.dx[i] = dx;
-                    batch.dy[i] = dy;
-                    batch.tmax[i] = tmax;
-                }
-                let mut out = vec![0.0; n];
-                if avx {
-                    batch.cast::<true>(&map, gx, gy, n, &mut out);
-                } else {
-                    batch.cast::<false>(&map, gx, gy, n, &mut out);
-                }
-                out
-            };
-            let portable = run(&mut batch, false);
-            for (i, &(dx, dy, tmax)) in dirs.iter().enumerate() {
-                let want = cast_simple(&map, gx, gy, dx, dy, tmax);
-                let got = portable[i];
-                let ok = if want.is_infinite() {
-                    got.is_infinite()
-                } else {
-                    (got - want).abs() <= 1e-9
-                };
-                assert!(
-                    ok,
-                    "map {w}x{h} from ({gx}, {gy}) dir ({dx}, {dy}) tmax {tmax}: {got} vs {want}"
-                );
-                rays += 1;
-            }
-            #[cfg(target_arch = "x86_64")]
-            {
-                if march::avx_usable(&map) {
-                    let simd = run(&mut batch, true);
-                    for (a, b) in simd.iter().zip(&portable) {
-                        assert_eq!(a.to_bits(), b.to_bits());
-                    }
-                }
-            }
+            rays += check_rays(&mut batch, &map, gx, gy, &dirs);
         }
     }
     assert!(rays > 3000, "{rays} rays");
+}
+
+/// Like the shipped tracks: a closed corridor (a ring of random width, off-centre, so
+/// its sides run at every angle) with everything outside it occupied, and origins inside
+/// it, where rays take long quadrant jumps along the corridor and graze its walls.
+#[test]
+fn march_equals_simple_dda_in_corridors() {
+    let mut rng = Rng::new(77);
+    let mut batch = Batch::new();
+    let mut rays = 0;
+    for _ in 0..6 {
+        let (w, h) = (120 + rng.below(200) as usize, 120 + rng.below(200) as usize);
+        let (cx, cy) = (w as f64 * rng.uniform_range(0.4, 0.6), h as f64 * 0.5);
+        let outer = 0.45 * w.min(h) as f64;
+        let inner = outer - rng.uniform_range(8.0, 40.0);
+        let mut g = vec![false; w * h];
+        for r in 0..h {
+            for c in 0..w {
+                let d = libm::hypot(c as f64 + 0.5 - cx, 1.3 * (r as f64 + 0.5 - cy));
+                g[r * w + c] = !(inner..outer).contains(&d);
+            }
+        }
+        let map = Map::from_grid("ring", w, h, 0.05, Pose::new(0.0, 0.0, 0.0), g).unwrap();
+        let mut origins = 0;
+        while origins < 8 {
+            let (gx, gy) = (
+                rng.uniform_range(0.0, w as f64),
+                rng.uniform_range(0.0, h as f64),
+            );
+            if map.cell_occupied(gx as i64, gy as i64) {
+                continue;
+            }
+            origins += 1;
+            let n = CHUNK;
+            let a0 = rng.uniform_range(-4.0, 4.0);
+            let dirs: Vec<(f64, f64, f64)> = (0..n)
+                .map(|i| {
+                    let (s, c) = libm::sincos(a0 + i as f64 * 0.0245);
+                    (c, s, 1e9)
+                })
+                .collect();
+            rays += check_rays(&mut batch, &map, gx, gy, &dirs);
+        }
+    }
+    assert!(rays > 10_000, "{rays} rays");
 }
 
 #[test]

@@ -2,8 +2,12 @@
 //!
 //! A [`Map`] holds the occupancy grid (row 0 = the image's bottom row, i.e. the map
 //! origin side), its resolution and origin pose, and two acceleration structures:
-//! - a Chebyshev (L-infinity) clearance per cell, built eagerly in two passes: the LIDAR
-//!   uses it to jump across empty square blocks, and [`Map::clearance`] reads it;
+//! - four quadrant clearances per cell (the side of the largest all-free square with
+//!   that cell as one corner, one table per corner direction), built eagerly in one pass
+//!   each: the LIDAR jumps across the square ahead of a ray, which in a corridor is far
+//!   larger than the square centred on the ray's cell (that one is limited by the wall
+//!   beside or behind it), and their minimum is the Chebyshev clearance that
+//!   [`Map::clearance`] reads;
 //! - the exact Euclidean distance transform ([`Map::distance_field`]), built on first
 //!   use, needed only by the reference (f1tenth_gym) scan mode.
 //!
@@ -19,9 +23,9 @@ use crate::geometry::Pose;
 
 pub use load::{MapError, OccupancyRule};
 
-/// The largest Chebyshev clearance stored per cell (saturating; a capped value is a
+/// The largest quadrant clearance stored per cell (saturating; a capped value is a
 /// lower bound, so everything that reads it stays exact or conservative).
-pub(crate) const CHEB_MAX: u8 = u8::MAX;
+pub(crate) const CLEARANCE_MAX: u8 = u8::MAX;
 
 /// An occupancy-grid map. Immutable after construction; `Send + Sync`.
 #[derive(Debug)]
@@ -35,14 +39,17 @@ pub struct Map {
     origin_cos: f64,
     origin_sin: f64,
     occupied: Vec<bool>,
-    /// Chebyshev clearance on the grid padded with one cell on every side, row-major
-    /// `(width + 2) x (height + 2)`, map cell (c, r) at `(r + 1) * (width + 2) + c + 1`.
-    /// 0 on occupied cells and on the padding; else the chessboard distance (in cells) to
-    /// the nearest occupied cell or to the padding (the map border counts as a wall here),
-    /// saturated at [`CHEB_MAX`]. So a free cell with value `v` is the centre of an
-    /// all-free `(2v-1) x (2v-1)` block that lies inside the map, and a ray jumping across
-    /// such blocks never leaves the padded grid.
-    cheb: Vec<u8>,
+    /// Quadrant clearances on the grid padded with one cell on every side, row-major
+    /// `(width + 2) x (height + 2)`, four bytes per cell (one cache line holds all four
+    /// quadrants of a cell): quadrant `quad` of map cell (c, r) at
+    /// `4 * ((r + 1) * (width + 2) + c + 1) + quad`. Quadrant `(x_neg as usize) | (y_neg as usize) << 1` holds, per cell, the
+    /// side `q` of the largest all-free square `[c, c + (q-1) sx] x [r, r + (q-1) sy]`
+    /// (`sx = -1` if `x_neg` else 1, likewise `sy`), saturated at [`CLEARANCE_MAX`]; 0 on
+    /// occupied cells and on the padding (the map border counts as a wall here). So a
+    /// ray jumping across such squares never leaves the padded grid. The minimum over the
+    /// four quadrants is the Chebyshev clearance: the cell is then the centre of an
+    /// all-free `(2q-1) x (2q-1)` block.
+    quadrants: Vec<u8>,
     content_hash: OnceLock<u64>,
     distance_field: OnceLock<Vec<f64>>,
 }
@@ -89,7 +96,7 @@ impl Map {
                 origin.x, origin.y, origin.theta
             )));
         }
-        let cheb = chebyshev_clearance(width, height, &occupied);
+        let quadrants = quadrant_clearance(width, height, &occupied);
         Ok(Map {
             name: name.to_string(),
             width,
@@ -99,7 +106,7 @@ impl Map {
             origin_cos: libm::cos(origin.theta),
             origin_sin: libm::sin(origin.theta),
             occupied,
-            cheb,
+            quadrants,
             content_hash: OnceLock::new(),
             distance_field: OnceLock::new(),
         })
@@ -181,7 +188,7 @@ impl Map {
     }
 
     /// A conservative lower bound (metres) on the distance from (x, y) to the nearest
-    /// occupied cell square; 0 inside an occupied cell. Read from the Chebyshev clearance:
+    /// occupied cell square; 0 inside an occupied cell. From the Chebyshev clearance:
     /// the point's cell is the centre of an all-free square block, and the distance to
     /// that block's border bounds the distance to any occupied cell. O(1).
     pub fn clearance(&self, x: f64, y: f64) -> f64 {
@@ -197,7 +204,7 @@ impl Map {
             return libm::hypot(ex, ey) * self.resolution;
         }
         let (c, r) = (gx as usize, gy as usize);
-        let v = self.cheb[(r + 1) * (self.width + 2) + c + 1];
+        let v = self.chebyshev_at(c, r);
         if v == 0 {
             return 0.0;
         }
@@ -232,63 +239,59 @@ impl Map {
         &self.occupied
     }
 
-    /// Padded per-cell Chebyshev clearance (see the field doc); for the LIDAR.
+    /// The padded quadrant clearances, four bytes per cell (see the field doc); for the
+    /// LIDAR.
     #[inline]
-    pub(crate) fn chebyshev(&self) -> &[u8] {
-        &self.cheb
+    pub(crate) fn quadrant_clearance(&self) -> &[u8] {
+        &self.quadrants
+    }
+
+    /// The Chebyshev clearance of map cell (c, r): the minimum of its four quadrant
+    /// clearances (each quadrant square of that side is free, and together they make the
+    /// centred block; conversely the centred block contains each of them).
+    fn chebyshev_at(&self, c: usize, r: usize) -> u8 {
+        let i = 4 * ((r + 1) * (self.width + 2) + c + 1);
+        let q = &self.quadrants[i..i + 4];
+        q[0].min(q[1]).min(q[2]).min(q[3])
     }
 }
 
-/// Chessboard distance transform on the padded grid (see `Map::cheb`): two passes of the
-/// 8-neighbour chamfer with unit weights, which is exact for L-infinity, saturating at
-/// [`CHEB_MAX`]. The padding is 0, so every interior cell has all 8 neighbours.
-fn chebyshev_clearance(w: usize, h: usize, occupied: &[bool]) -> Vec<u8> {
+/// The four quadrant clearance tables (see `Map::quadrants`), each by the largest-square
+/// recurrence `q = 0` if occupied, else `1 + min(q(c+sx, r), q(c, r+sy), q(c+sx, r+sy))`,
+/// saturating at [`CLEARANCE_MAX`], swept from the far corner. The padding is 0.
+fn quadrant_clearance(w: usize, h: usize, occupied: &[bool]) -> Vec<u8> {
     let wp = w + 2;
-    let mut d = vec![0u8; wp * (h + 2)];
-    for r in 0..h {
-        let src = &occupied[r * w..(r + 1) * w];
-        let dst = &mut d[(r + 1) * wp + 1..(r + 1) * wp + 1 + w];
-        for c in 0..w {
-            dst[c] = if src[c] { 0 } else { CHEB_MAX };
-        }
-    }
-    // Written without closures or iterator adaptors: maps load in debug builds (tests)
-    // too, where those are not inlined.
-    #[inline(always)]
-    fn step(n: u8) -> u8 {
-        if n == CHEB_MAX { CHEB_MAX } else { n + 1 }
-    }
-    for r in 1..=h {
-        let (above, rest) = d.split_at_mut(r * wp);
-        let up = &above[(r - 1) * wp..];
-        let row = &mut rest[..wp];
-        for c in 1..=w {
-            let mut v = row[c];
-            if v != 0 {
-                v = v.min(step(row[c - 1]));
-                v = v.min(step(up[c - 1]));
-                v = v.min(step(up[c]));
-                v = v.min(step(up[c + 1]));
-                row[c] = v;
+    let n = wp * (h + 2);
+    let mut q = vec![0u8; 4 * n];
+    // Written with plain index loops: maps load in debug builds (tests) too, where
+    // closures and iterator adaptors are not inlined.
+    for quad in 0..4 {
+        let (x_neg, y_neg) = (quad & 1 != 0, quad & 2 != 0);
+        for i in 0..h {
+            // Padded row r, swept away from its neighbour row (already done).
+            let r = if y_neg { 1 + i } else { h - i };
+            let (row, prev) = if y_neg {
+                let (done, rest) = q.split_at_mut(4 * r * wp);
+                (&mut rest[..4 * wp], &done[4 * (r - 1) * wp..])
+            } else {
+                let (rest, done) = q.split_at_mut(4 * (r + 1) * wp);
+                (&mut rest[4 * r * wp..], &done[..4 * wp])
+            };
+            let src = &occupied[(r - 1) * w..r * w];
+            for j in 0..w {
+                let c = if x_neg { 1 + j } else { w - j };
+                let nc = if x_neg { c - 1 } else { c + 1 };
+                let (at, next) = (4 * c + quad, 4 * nc + quad);
+                row[at] = if src[c - 1] {
+                    0
+                } else {
+                    let m = row[next].min(prev[at]).min(prev[next]);
+                    if m == CLEARANCE_MAX { m } else { m + 1 }
+                };
             }
         }
     }
-    for r in (1..=h).rev() {
-        let (upto, below) = d.split_at_mut((r + 1) * wp);
-        let row = &mut upto[r * wp..];
-        let dn = &below[..wp];
-        for c in (1..=w).rev() {
-            let mut v = row[c];
-            if v != 0 {
-                v = v.min(step(row[c + 1]));
-                v = v.min(step(dn[c + 1]));
-                v = v.min(step(dn[c]));
-                v = v.min(step(dn[c - 1]));
-                row[c] = v;
-            }
-        }
-    }
-    d
+    q
 }
 
 fn hash_grid(w: usize, h: usize, resolution: f64, origin: Pose, occupied: &[bool]) -> u64 {
@@ -349,10 +352,55 @@ mod tests {
                     .min()
                     .unwrap()
                     .min(border);
-                let got = m.cheb[(r + 1) * (w + 2) + c + 1];
+                let got = m.chebyshev_at(c, r);
                 assert_eq!(i64::from(got), brute, "cell {c},{r}");
             }
         }
+    }
+
+    /// Every quadrant table holds the largest free square with the cell as its corner,
+    /// the map border counting as a wall, and 0 on occupied cells and the padding.
+    #[test]
+    fn quadrant_clearance_matches_brute_force() {
+        let mut rng = crate::rng::Rng::new(11);
+        let (w, h) = (29, 19);
+        let occ: Vec<(usize, usize)> = (0..25)
+            .map(|_| (rng.below(w as u64) as usize, rng.below(h as u64) as usize))
+            .collect();
+        let m = grid(w, h, &occ);
+        let q = m.quadrant_clearance();
+        let free = |c: i64, r: i64| {
+            c >= 0 && r >= 0 && c < w as i64 && r < h as i64 && !m.cell_occupied(c, r)
+        };
+        for quad in 0..4usize {
+            let sx = if quad & 1 != 0 { -1 } else { 1 };
+            let sy = if quad & 2 != 0 { -1 } else { 1 };
+            for r in -1..=h as i64 {
+                for c in -1..=w as i64 {
+                    let square_free =
+                        |k: i64| (0..=k).all(|i| (0..=k).all(|j| free(c + i * sx, r + j * sy)));
+                    let mut side = 0;
+                    while square_free(side) {
+                        side += 1;
+                    }
+                    let got = q[4 * ((r + 1) * (w as i64 + 2) + c + 1) as usize + quad];
+                    assert_eq!(i64::from(got), side, "quadrant {quad} cell {c},{r}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn quadrant_clearance_saturates() {
+        let m = grid(300, 3, &[]);
+        let q = m.quadrant_clearance();
+        // Only three rows: the square is limited by the height, never above 3.
+        assert_eq!(q[4 * ((1 + 1) * 302 + 1)], 2);
+        let big = grid(270, 270, &[]);
+        let q2 = big.quadrant_clearance();
+        assert_eq!(q2[4 * (272 + 1)], CLEARANCE_MAX);
+        assert_eq!(q2[4 * (270 * 272 + 270) + 3], CLEARANCE_MAX);
+        assert_eq!(q2[4 * (272 + 1) + 3], 1);
     }
 
     #[test]

@@ -1,0 +1,382 @@
+//! Pure pursuit on a raceline with a curvature-based speed profile.
+//!
+//! Steering: aim at the path point one lookahead distance ahead, where the lookahead is
+//! `lookahead_min` plus `lookahead_gain` times the speed, and steer the circle through it:
+//! delta = `steer_gain` * atan(L * 2 y / d^2). Speed: a profile computed once from the
+//! path's own curvature, v = sqrt(`lat_accel` / |kappa|) capped at `max_speed`, then a
+//! backward pass so the car can brake from each speed to the next at `brake_decel`; the
+//! command is the profile a short preview ahead of the car, times `speed_scale`. The path
+//! is the track's raceline, or its centerline when it has none. Farther than 0.2 m from
+//! the path the speed command drops (divided by 1 + excess metres) and the lookahead grows by twice the distance, so a car that
+//! starts off the line joins it without overshooting. Needs no LIDAR.
+
+use paddock_sim::geometry::Pose;
+use paddock_sim::params::VehicleParams;
+use paddock_sim::track::Track;
+use paddock_sim::world::{Action, Observation};
+use serde::{Deserialize, Serialize};
+
+use crate::{Driver, ParamSpec, Sensors};
+
+pub const NAME: &str = "pure-pursuit";
+
+/// Distance from the path (m) tolerated at full speed.
+const OFF_PATH_DEADBAND: f64 = 0.2;
+/// Speed divisor growth per metre beyond the deadband.
+const OFF_PATH_SLOWDOWN: f64 = 1.0;
+/// Extra lookahead per metre of distance from the path.
+const OFF_PATH_REACH: f64 = 2.0;
+pub const ABOUT: &str = "pure pursuit on the raceline with a curvature-based speed profile";
+
+/// The tunable parameters, in vector order.
+pub fn param_specs() -> Vec<ParamSpec> {
+    vec![
+        ParamSpec {
+            name: "lookahead_min",
+            default: 0.8,
+            lo: 0.3,
+            hi: 3.0,
+            doc: "lookahead distance at standstill, m",
+        },
+        ParamSpec {
+            name: "lookahead_gain",
+            default: 0.15,
+            lo: 0.0,
+            hi: 0.6,
+            doc: "lookahead growth with speed, s (lookahead = min + gain * v)",
+        },
+        ParamSpec {
+            name: "lat_accel",
+            default: 5.0,
+            lo: 1.0,
+            hi: 15.0,
+            doc: "lateral acceleration the speed profile allows, m/s^2",
+        },
+        ParamSpec {
+            name: "brake_decel",
+            default: 5.0,
+            lo: 1.0,
+            hi: 15.0,
+            doc: "deceleration the speed profile plans with, m/s^2",
+        },
+        ParamSpec {
+            name: "max_speed",
+            default: 7.0,
+            lo: 1.0,
+            hi: 20.0,
+            doc: "speed cap, m/s",
+        },
+        ParamSpec {
+            name: "speed_scale",
+            default: 1.0,
+            lo: 0.2,
+            hi: 1.5,
+            doc: "multiplies the speed profile",
+        },
+        ParamSpec {
+            name: "steer_gain",
+            default: 1.0,
+            lo: 0.5,
+            hi: 2.0,
+            doc: "multiplies the pure-pursuit steering angle",
+        },
+    ]
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PurePursuitParams {
+    pub lookahead_min: f64,
+    pub lookahead_gain: f64,
+    pub lat_accel: f64,
+    pub brake_decel: f64,
+    pub max_speed: f64,
+    pub speed_scale: f64,
+    pub steer_gain: f64,
+    /// Wheelbase used by the steering law, m (lf + lr of the car; not tuned).
+    pub wheelbase: f64,
+}
+
+impl Default for PurePursuitParams {
+    fn default() -> Self {
+        let d: Vec<f64> = param_specs().iter().map(|s| s.default).collect();
+        Self::from_vector(&d, &VehicleParams::default())
+    }
+}
+
+impl PurePursuitParams {
+    /// From a vector in [`param_specs`] order (validated by the caller).
+    pub fn from_vector(v: &[f64], vehicle: &VehicleParams) -> Self {
+        Self {
+            lookahead_min: v[0],
+            lookahead_gain: v[1],
+            lat_accel: v[2],
+            brake_decel: v[3],
+            max_speed: v[4],
+            speed_scale: v[5],
+            steer_gain: v[6],
+            wheelbase: vehicle.lf + vehicle.lr,
+        }
+    }
+
+    pub fn to_vector(&self) -> Vec<f64> {
+        vec![
+            self.lookahead_min,
+            self.lookahead_gain,
+            self.lat_accel,
+            self.brake_decel,
+            self.max_speed,
+            self.speed_scale,
+            self.steer_gain,
+        ]
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct PurePursuit {
+    pub params: PurePursuitParams,
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    /// Cumulative arc length of the path, closing the loop (`cum[n]` = path length).
+    cum: Vec<f64>,
+    /// Planned speed at each path point.
+    profile: Vec<f64>,
+    hint: Option<usize>,
+}
+
+impl PurePursuit {
+    /// Follow the track's raceline, or its centerline if it has none.
+    pub fn new(track: &Track, params: PurePursuitParams) -> Self {
+        let (xs, ys): (Vec<f64>, Vec<f64>) = match track.raceline() {
+            Some(r) => r.iter().map(|p| (p.x, p.y)).unzip(),
+            None => track.points().iter().map(|p| (p.x, p.y)).unzip(),
+        };
+        let n = xs.len();
+        let mut cum = Vec::with_capacity(n + 1);
+        let mut s = 0.0;
+        for i in 0..n {
+            cum.push(s);
+            let j = (i + 1) % n;
+            s += libm::hypot(xs[j] - xs[i], ys[j] - ys[i]);
+        }
+        cum.push(s);
+        let profile = speed_profile(&xs, &ys, &cum, &params);
+        Self {
+            params,
+            xs,
+            ys,
+            cum,
+            profile,
+            hint: None,
+        }
+    }
+
+    /// The planned speed at each path point (before `speed_scale`).
+    pub fn profile(&self) -> &[f64] {
+        &self.profile
+    }
+
+    fn d2(&self, i: usize, x: f64, y: f64) -> f64 {
+        (self.xs[i] - x) * (self.xs[i] - x) + (self.ys[i] - y) * (self.ys[i] - y)
+    }
+
+    fn nearest(&mut self, x: f64, y: f64) -> usize {
+        let n = self.xs.len();
+        let local = self.hint.and_then(|h| {
+            // walk downhill from the hint in both directions
+            let mut best = h;
+            loop {
+                let next = (best + 1) % n;
+                let prev = (best + n - 1) % n;
+                if self.d2(next, x, y) < self.d2(best, x, y) {
+                    best = next;
+                } else if self.d2(prev, x, y) < self.d2(best, x, y) {
+                    best = prev;
+                } else {
+                    break;
+                }
+            }
+            // a jump (reset, spin) makes the local answer far off: search globally
+            (self.d2(best, x, y) <= 4.0).then_some(best)
+        });
+        let best = local.unwrap_or_else(|| {
+            (0..n)
+                .min_by(|&a, &b| {
+                    self.d2(a, x, y)
+                        .total_cmp(&self.d2(b, x, y))
+                        .then(a.cmp(&b))
+                })
+                .unwrap_or(0)
+        });
+        self.hint = Some(best);
+        best
+    }
+
+    /// The first path index at least `dist` metres along the path from `i`.
+    fn ahead(&self, i: usize, dist: f64) -> usize {
+        let n = self.xs.len();
+        let total = self.cum[n];
+        let mut j = i;
+        for _ in 0..n {
+            if (self.cum[j] - self.cum[i]).rem_euclid(total) >= dist {
+                break;
+            }
+            j = (j + 1) % n;
+        }
+        j
+    }
+
+    /// The action for a car at `pose` moving at `speed` (m/s).
+    pub fn act_pose(&mut self, pose: Pose, speed: f64) -> Action {
+        let i = self.nearest(pose.x, pose.y);
+        let p = &self.params;
+        let lookahead = p.lookahead_min + p.lookahead_gain * speed.max(0.0);
+        // off the path, aim farther along it, so the car joins it at a shallow angle
+        let off_path = libm::sqrt(self.d2(i, pose.x, pose.y));
+        let j = self.ahead(i, lookahead + OFF_PATH_REACH * off_path);
+        let (dx, dy) = (self.xs[j] - pose.x, self.ys[j] - pose.y);
+        let (s, c) = libm::sincos(pose.theta);
+        let local_y = -s * dx + c * dy;
+        let dist2 = (dx * dx + dy * dy).max(1e-6);
+        let curvature = 2.0 * local_y / dist2;
+        let steer = p.steer_gain * libm::atan(p.wheelbase * curvature);
+        // look a little ahead for the speed: the car needs time to slow down
+        let k = self.ahead(i, 0.25 * speed.max(0.0));
+        // far from the path (a start off the line, a slide) the car closes in slowly:
+        // converging at full speed overshoots into the far wall
+        let off = (off_path - OFF_PATH_DEADBAND).max(0.0);
+        let speed_cmd = self.profile[k] * p.speed_scale / (1.0 + OFF_PATH_SLOWDOWN * off);
+        Action::new(steer, speed_cmd)
+    }
+}
+
+impl Driver for PurePursuit {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn sensors(&self) -> Sensors {
+        Sensors { lidar: false }
+    }
+
+    fn reset(&mut self) {
+        self.hint = None;
+    }
+
+    fn act(&mut self, obs: &Observation, me: usize) -> Action {
+        let pose = Pose::new(obs.poses_x[me], obs.poses_y[me], obs.poses_theta[me]);
+        self.act_pose(pose, obs.linear_vels_x[me])
+    }
+}
+
+/// Curvature of the closed polyline at each point (circle through the neighbours two
+/// points away on each side, which smooths sampling noise).
+fn curvature(xs: &[f64], ys: &[f64]) -> Vec<f64> {
+    let n = xs.len();
+    (0..n)
+        .map(|i| {
+            let a = (i + n - 2) % n;
+            let b = (i + 2) % n;
+            let (ax, ay) = (xs[i] - xs[a], ys[i] - ys[a]);
+            let (bx, by) = (xs[b] - xs[i], ys[b] - ys[i]);
+            let (cx, cy) = (xs[b] - xs[a], ys[b] - ys[a]);
+            let cross = ax * by - ay * bx;
+            let la = libm::hypot(ax, ay);
+            let lb = libm::hypot(bx, by);
+            let lc = libm::hypot(cx, cy);
+            let denom = la * lb * lc;
+            if denom > 1e-12 {
+                2.0 * cross / denom
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+fn speed_profile(xs: &[f64], ys: &[f64], cum: &[f64], p: &PurePursuitParams) -> Vec<f64> {
+    let n = xs.len();
+    let kappa = curvature(xs, ys);
+    let mut v: Vec<f64> = kappa
+        .iter()
+        .map(|k| {
+            let lim = if k.abs() > 1e-9 {
+                libm::sqrt(p.lat_accel / k.abs())
+            } else {
+                f64::INFINITY
+            };
+            lim.min(p.max_speed)
+        })
+        .collect();
+    // backward passes around the loop: v_i <= sqrt(v_{i+1}^2 + 2 a ds)
+    for _ in 0..2 {
+        for k in (0..n).rev() {
+            let j = (k + 1) % n;
+            let ds = cum[k + 1] - cum[k];
+            let lim = libm::sqrt(v[j] * v[j] + 2.0 * p.brake_decel * ds);
+            if lim < v[k] {
+                v[k] = lim;
+            }
+        }
+    }
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use paddock_sim::track::CenterPoint;
+
+    fn circle(r: f64) -> Track {
+        let pts = (0..400)
+            .map(|i| {
+                let a = std::f64::consts::TAU * i as f64 / 400.0;
+                CenterPoint {
+                    x: r * a.cos(),
+                    y: r * a.sin(),
+                    w_right: 1.0,
+                    w_left: 1.0,
+                }
+            })
+            .collect();
+        Track::new(pts, None).unwrap()
+    }
+
+    #[test]
+    fn profile_follows_curvature() {
+        let params = PurePursuitParams {
+            max_speed: 20.0,
+            ..PurePursuitParams::default()
+        };
+        let pp = PurePursuit::new(&circle(10.0), params);
+        // v = sqrt(a / kappa) = sqrt(5 * 10)
+        for v in pp.profile() {
+            assert!((v - 50f64.sqrt()).abs() < 0.05, "{v}");
+        }
+        // the cap applies
+        let pp = PurePursuit::new(&circle(10.0), PurePursuitParams::default());
+        assert!(pp.profile().iter().all(|&v| v == 7.0));
+    }
+
+    #[test]
+    fn steers_left_on_a_ccw_circle() {
+        let mut pp = PurePursuit::new(&circle(10.0), PurePursuitParams::default());
+        let a = pp.act_pose(Pose::new(10.0, 0.0, std::f64::consts::FRAC_PI_2), 3.0);
+        let expected = (0.33f64 / 10.0).atan();
+        assert!(
+            a.steer > 0.5 * expected && a.steer < 2.0 * expected,
+            "{a:?}"
+        );
+        assert!(a.speed > 6.0);
+    }
+
+    #[test]
+    fn vector_round_trip() {
+        let p = PurePursuitParams::default();
+        let v = p.to_vector();
+        assert_eq!(v.len(), param_specs().len());
+        assert_eq!(
+            PurePursuitParams::from_vector(&v, &VehicleParams::default()),
+            p
+        );
+    }
+}
