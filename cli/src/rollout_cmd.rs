@@ -235,6 +235,9 @@ pub struct BenchmarkArgs {
     /// Print a markdown table.
     #[arg(long)]
     markdown: bool,
+    /// Print only the markdown table's row (to assemble a table of many runs).
+    #[arg(long)]
+    markdown_row: bool,
 }
 
 pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
@@ -271,6 +274,15 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else if args.markdown {
         print!("{}", BenchmarkReport::markdown(&[report]));
+    } else if args.markdown_row {
+        print!(
+            "{}",
+            BenchmarkReport::markdown(&[report])
+                .lines()
+                .nth(2)
+                .unwrap_or("")
+        );
+        println!();
     } else {
         print!("{}", BenchmarkReport::table(&[report]));
     }

@@ -8,6 +8,10 @@
 //! scan 28-31 M rays/s (about 36 us per scan), scan_reference 6.8-7.0 M rays/s.
 //! On shipped tracks from centerline poses (`cargo test -p paddock-sim --release --test
 //! maps -- --ignored --nocapture`): scan 31-37 M rays/s, scan_reference 8-10 M rays/s.
+//! Quadrant clearance tables instead of the centred Chebyshev block, measured side by
+//! side with the previous build on the same (busier) VM: scan 20.9-22.7 -> 24.5-25.2 M
+//! rays/s here; `paddock perf` medians of 3, rays/s: lakeside 22.4 -> 25.0, harbour
+//! 23.9 -> 27.8, quarry 20.8 -> 24.0 M.
 
 use std::hint::black_box;
 

@@ -97,7 +97,7 @@ pub struct Track {
 }
 
 /// How far (in segments) a local projection search looks around its hint.
-const LOCAL_WINDOW: usize = 12;
+const LOCAL_WINDOW: usize = 6;
 
 impl Track {
     /// A track from centerline points (the loop closes from the last point back to the

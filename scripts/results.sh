@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# The README's results table: every driver on every shipped map, benchmark B1 (time
+# trial) and B3 (head to head against default pure pursuit), default parameters.
+# Usage: scripts/results.sh [EPISODES]   (default 20; prints a markdown table)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/paddock/target}"
+cargo build --release --locked -q -p paddock
+P="$CARGO_TARGET_DIR/release/paddock"
+N="${1:-20}"
+drivers=(pure-pursuit follow-the-gap lattice mlp)
+maps=(lakeside quarry harbour)
+echo "| task | map | policy | opponent | episodes | lap time [s] | success | crash | win |"
+echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+for task in b1 b3; do
+    for map in "${maps[@]}"; do
+        for d in "${drivers[@]}"; do
+            "$P" benchmark "$task" --policy "$d" --map "$map" --episodes "$N" --seed 1 --markdown-row
+        done
+    done
+done
