@@ -42,7 +42,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let mut world = World::new(circuit.clone(), config)?;
     world.reset(args.seed, &Starts::Random)?;
     let mut drivers: Vec<PurePursuit> = (0..args.agents)
-        .map(|_| PurePursuit::new(&circuit.track, PurePursuitParams::default()))
+        .map(|_| PurePursuit::on_circuit(&circuit, PurePursuitParams::default()))
         .collect();
     let steps = (args.time_limit / world.config().dt).ceil() as u64;
     let mut actions = vec![Action::default(); args.agents];

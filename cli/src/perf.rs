@@ -64,7 +64,7 @@ fn drive(
     }
     let mut world = World::new(circuit.clone(), config)?;
     let mut drivers: Vec<PurePursuit> = (0..agents)
-        .map(|_| PurePursuit::new(&circuit.track, PurePursuitParams::default()))
+        .map(|_| PurePursuit::on_circuit(circuit, PurePursuitParams::default()))
         .collect();
     let mut actions = vec![Action::default(); agents];
     let budget = Duration::from_secs_f64(seconds.max(0.1));

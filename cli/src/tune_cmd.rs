@@ -34,7 +34,7 @@ pub struct TuneArgs {
     /// Driver to tune (see `paddock drivers`).
     #[arg(long, default_value = "pure-pursuit")]
     policy: String,
-    #[arg(long, default_value_t = 30)]
+    #[arg(long, default_value_t = 60)]
     generations: u32,
     /// Candidates per generation.
     #[arg(long, default_value_t = 12)]

@@ -363,7 +363,7 @@ impl Lattice {
         let lidar = LidarConfig::default();
         Self {
             params,
-            path: Arc::new(RefPath::from_track(&circuit.track)),
+            path: Arc::new(RefPath::from_circuit(circuit)),
             map: circuit.map.clone(),
             fov: lidar.fov,
             max_range: lidar.max_range,

@@ -194,8 +194,8 @@ pub fn build_driver(
     let info = driver_info(name)?;
     check_params(name, &info.params, params)?;
     match info.name {
-        pure_pursuit::NAME => Ok(Box::new(PurePursuit::new(
-            &circuit.track,
+        pure_pursuit::NAME => Ok(Box::new(PurePursuit::on_circuit(
+            circuit,
             PurePursuitParams::from_vector(params, vehicle),
         ))),
         follow_gap::NAME => Ok(Box::new(FollowTheGap::new(

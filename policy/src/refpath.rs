@@ -55,6 +55,18 @@ pub struct RefPath {
 }
 
 impl RefPath {
+    /// The circuit's driving line (its raceline, or a line computed inside the map's
+    /// free space where the raceline grazes walls; see `Circuit::driving_line`), with its
+    /// speed profile.
+    pub fn from_circuit(circuit: &paddock_sim::track::Circuit) -> Self {
+        let line = circuit.driving_line();
+        Self::new(
+            line.iter().map(|p| p.x).collect(),
+            line.iter().map(|p| p.y).collect(),
+            Some(line.iter().map(|p| p.vx).collect()),
+        )
+    }
+
     /// The track's raceline (with its speed profile), or its centerline (with a
     /// curvature-based profile).
     pub fn from_track(track: &Track) -> Self {

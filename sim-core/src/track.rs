@@ -568,7 +568,15 @@ pub struct Circuit {
     pub dir: PathBuf,
     pub map: Arc<Map>,
     pub track: Arc<Track>,
+    /// The line drivers follow, computed on first use (see [`Circuit::driving_line`]).
+    driving_line: OnceLock<Vec<RacelinePoint>>,
 }
+
+/// A raceline whose points keep at least this clearance (m) from every wall is driven as
+/// it is; otherwise [`Circuit::driving_line`] computes one inside the map's free space.
+pub const DRIVING_LINE_CLEARANCE: f64 = 0.25;
+/// Wall margin (m) of a computed driving line: half the car's width plus room to track.
+pub const DRIVING_LINE_MARGIN: f64 = 0.4;
 
 type CircuitCache = Mutex<HashMap<PathBuf, Weak<Circuit>>>;
 
@@ -578,6 +586,39 @@ fn circuit_cache() -> &'static CircuitCache {
 }
 
 impl Circuit {
+    pub fn new(name: &str, dir: PathBuf, map: Arc<Map>, track: Arc<Track>) -> Self {
+        Self {
+            name: name.to_string(),
+            dir,
+            map,
+            track,
+            driving_line: OnceLock::new(),
+        }
+    }
+
+    /// The racing line drivers follow: the circuit's raceline if it keeps
+    /// [`DRIVING_LINE_CLEARANCE`] from the walls everywhere, else (no raceline, or one
+    /// that grazes walls, as the racelines of some real tracks do where the map's corridor
+    /// is narrower than its centerline file claims) a minimum-curvature line computed
+    /// inside the map's free space, [`DRIVING_LINE_MARGIN`] from the walls. Computed once
+    /// per circuit, deterministically.
+    pub fn driving_line(&self) -> &[RacelinePoint] {
+        self.driving_line.get_or_init(|| {
+            if let Some(r) = self.track.raceline()
+                && r.iter()
+                    .all(|p| self.map.clearance(p.x, p.y) >= DRIVING_LINE_CLEARANCE)
+            {
+                return r.to_vec();
+            }
+            crate::trackgen::raceline_in_map(
+                &self.map,
+                &self.track,
+                DRIVING_LINE_MARGIN,
+                &crate::trackgen::SpeedLimits::default(),
+            )
+        })
+    }
+
     /// Load the circuit in `dir`, or the circuit whose map YAML is `dir`.
     pub fn load(path: &Path) -> Result<Arc<Circuit>, TrackError> {
         let dir = if path.is_file() {
@@ -625,12 +666,7 @@ impl Circuit {
             &centerline,
             raceline.is_file().then_some(raceline.as_path()),
         )?;
-        let circuit = Arc::new(Circuit {
-            name: stem,
-            dir: key.clone(),
-            map,
-            track: Arc::new(track),
-        });
+        let circuit = Arc::new(Circuit::new(&stem, key.clone(), map, Arc::new(track)));
         circuit_cache()
             .lock()
             .unwrap_or_else(|e| e.into_inner())

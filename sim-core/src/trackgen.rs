@@ -487,3 +487,81 @@ impl GeneratedTrack {
         out
     }
 }
+
+/// A minimum-curvature racing line for an existing circuit, inside the free space its map
+/// really has: the corridor is measured along the centerline normals on the occupancy
+/// grid (not taken from the centerline file's widths, which real maps do not always
+/// honour), less `margin` metres on each side; where the corridor is narrower than two
+/// margins the line keeps to its middle. Same optimiser and speed profile as the
+/// generator's racelines.
+pub fn raceline_in_map(
+    map: &crate::map::Map,
+    track: &crate::track::Track,
+    margin: f64,
+    limits: &SpeedLimits,
+) -> Vec<crate::track::RacelinePoint> {
+    const STEP: f64 = 0.1;
+    const MAX_REACH: f64 = 6.0;
+    let length = track.length();
+    let n = (libm::ceil(length / STEP) as usize).max(8);
+    let step = length / n as f64;
+    let probe = (0.5 * map.resolution()).max(0.01);
+    let mut pts = Vec::with_capacity(n);
+    let mut normals = Vec::with_capacity(n);
+    let mut lo = Vec::with_capacity(n);
+    let mut hi = Vec::with_capacity(n);
+    for k in 0..n {
+        let (pose, _, _) = track.at(k as f64 * step);
+        let (s, c) = libm::sincos(pose.theta);
+        let normal = [-s, c];
+        // free distance to each side: march until the first occupied cell
+        let free = |side: f64| {
+            let mut d = 0.0;
+            while d < MAX_REACH {
+                if map.occupied_at(pose.x + side * d * normal[0], pose.y + side * d * normal[1]) {
+                    return (d - probe).max(0.0);
+                }
+                d += probe;
+            }
+            MAX_REACH
+        };
+        let (left, right) = (free(1.0), free(-1.0));
+        let (mut l, mut h) = (-(right - margin), left - margin);
+        if l > h {
+            let mid = 0.5 * (left - right);
+            (l, h) = (mid, mid);
+        }
+        pts.push([pose.x, pose.y]);
+        normals.push(normal);
+        lo.push(l);
+        hi.push(h);
+    }
+    let corridor = raceline::Corridor {
+        points: &pts,
+        normals: &normals,
+        lo: &lo,
+        hi: &hi,
+        step,
+    };
+    let alpha = raceline::optimal_offsets(&corridor);
+    let line: Vec<[f64; 2]> = (0..n)
+        .map(|i| {
+            [
+                pts[i][0] + alpha[i] * normals[i][0],
+                pts[i][1] + alpha[i] * normals[i][1],
+            ]
+        })
+        .collect();
+    raceline::build(&line, RACELINE_SPACING, limits)
+        .into_iter()
+        .map(|p| crate::track::RacelinePoint {
+            s: p.s,
+            x: p.x,
+            y: p.y,
+            psi: p.psi,
+            kappa: p.kappa,
+            vx: p.vx,
+            ax: p.ax,
+        })
+        .collect()
+}

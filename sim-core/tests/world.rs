@@ -39,12 +39,12 @@ fn ring() -> Arc<Circuit> {
             }
         })
         .collect();
-    Arc::new(Circuit {
-        name: "ring".into(),
-        dir: std::env::temp_dir(),
-        map: Arc::new(map),
-        track: Arc::new(Track::new(pts, None).unwrap()),
-    })
+    Arc::new(Circuit::new(
+        "ring",
+        std::env::temp_dir(),
+        Arc::new(map),
+        Arc::new(Track::new(pts, None).unwrap()),
+    ))
 }
 
 /// Follow the ring: feed-forward curvature plus lateral and heading feedback.
