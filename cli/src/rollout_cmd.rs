@@ -97,6 +97,9 @@ pub struct RolloutArgs {
     /// Worker threads (0: one per core).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// With --json: include each episode's trajectory, sampled every N steps.
+    #[arg(long, value_name = "N")]
+    trajectory: Option<u32>,
     #[arg(long)]
     json: bool,
 }
@@ -118,7 +121,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         .map(|k| EpisodeTask {
             scenario: scenario.clone(),
             seed: task_seed(args.seed, k as u64),
-            record: None,
+            record: args.trajectory.map(|n| n.max(1)),
         })
         .collect();
     let exec = LocalExecutor::new(args.threads)?;
@@ -161,6 +164,15 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
                     "return": a.episode_return,
                     "time_s": e.time,
                     "steps": e.steps,
+                    "trajectory": e.trajectory.as_ref().map(|t| serde_json::json!({
+                        "decimation": t.decimation,
+                        "t": t.t,
+                        "x": t.agents[0].x,
+                        "y": t.agents[0].y,
+                        "theta": t.agents[0].theta,
+                        "speed": t.agents[0].speed,
+                        "steer": t.agents[0].steer,
+                    })),
                 })
             }).collect::<Vec<_>>(),
             "summary": {

@@ -203,7 +203,7 @@ pub fn build_driver(
         ))),
         mlp::NAME => Ok(Box::new(MlpDriver::new(
             Mlp::from_vector(&MlpConfig::default(), params)?,
-            &circuit.track,
+            circuit,
             vehicle,
         ))),
         lattice::NAME => Ok(Box::new(Lattice::new(

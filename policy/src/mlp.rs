@@ -41,7 +41,7 @@ use std::sync::{Arc, OnceLock};
 use paddock_sim::geometry::wrap_angle;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Track;
+use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
@@ -396,11 +396,12 @@ pub struct MlpDriver {
 }
 
 impl MlpDriver {
-    pub fn new(mlp: Mlp, track: &Track, vehicle: &VehicleParams) -> Self {
+    /// The track features are measured against the circuit's driving line.
+    pub fn new(mlp: Mlp, circuit: &Circuit, vehicle: &VehicleParams) -> Self {
         let path = mlp
             .config
             .track_features
-            .then(|| Arc::new(RefPath::from_track(track)));
+            .then(|| Arc::new(RefPath::from_circuit(circuit)));
         Self {
             steer_max: vehicle.s_max.min(-vehicle.s_min),
             v_top: mlp.config.speed_max.min(vehicle.v_max),
