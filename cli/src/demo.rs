@@ -2,10 +2,8 @@
 
 use anyhow::{Context, Result};
 use clap::Args;
-use paddock_policy::{PurePursuit, PurePursuitParams};
-use paddock_sim::collision::CollisionMode;
-use paddock_sim::track::{Circuit, DEFAULT_MAP};
-use paddock_sim::world::{Action, AgentStatus, Starts, World, WorldConfig};
+use paddock_rollout::{AgentSpec, Scenario, Termination, run_episode};
+use paddock_sim::track::DEFAULT_MAP;
 
 #[derive(Args)]
 pub struct DemoArgs {
@@ -30,82 +28,49 @@ pub struct DemoArgs {
 }
 
 pub fn run(args: &DemoArgs) -> Result<()> {
-    let name = args.map.as_deref().unwrap_or(DEFAULT_MAP);
-    let circuit = Circuit::resolve(name, &[]).with_context(|| format!("loading map {name:?}"))?;
-    let mut config = WorldConfig::with_agents(args.agents);
-    config.laps = Some(args.laps);
-    config.collision_mode = CollisionMode::Terminate;
-    for a in &mut config.agents {
-        // pure pursuit needs no LIDAR
-        a.scan = false;
-    }
-    let mut world = World::new(circuit.clone(), config)?;
-    world.reset(args.seed, &Starts::Random)?;
-    let mut drivers: Vec<PurePursuit> = (0..args.agents)
-        .map(|_| PurePursuit::on_circuit(&circuit, PurePursuitParams::default()))
-        .collect();
-    let steps = (args.time_limit / world.config().dt).ceil() as u64;
-    let mut actions = vec![Action::default(); args.agents];
-    for _ in 0..steps {
-        let obs = world.observation()?;
-        for (i, d) in drivers.iter_mut().enumerate() {
-            let pose = paddock_sim::geometry::Pose::new(
-                obs.poses_x[i],
-                obs.poses_y[i],
-                obs.poses_theta[i],
-            );
-            actions[i] = d.act_pose(pose, obs.linear_vels_x[i]);
-        }
-        world.step(&actions)?;
-        if world.done() {
-            break;
-        }
-    }
-    let state = world.state()?;
-    let agents: Vec<serde_json::Value> = state
-        .agents
-        .iter()
-        .enumerate()
-        .map(|(i, a)| {
-            serde_json::json!({
-                "agent": i,
-                "status": a.status,
-                "laps": a.laps.laps,
-                "lap_times": a.laps.lap_times,
-                "progress_m": a.laps.progress,
-            })
-        })
-        .collect();
+    let mut scenario = Scenario::single("pure-pursuit")?;
+    scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
+    scenario.agents = vec![AgentSpec::with_defaults("pure-pursuit")?; args.agents];
+    scenario.laps = args.laps;
+    scenario.time_limit = args.time_limit;
+    let episode = run_episode(&scenario, args.seed, None)
+        .with_context(|| format!("running a demo episode on map {:?}", scenario.map))?;
     if args.json {
+        let agents: Vec<serde_json::Value> = episode
+            .agents
+            .iter()
+            .enumerate()
+            .map(|(i, a)| {
+                serde_json::json!({
+                    "agent": i,
+                    "status": a.termination,
+                    "laps": a.lap_times.len(),
+                    "lap_times": a.lap_times,
+                    "progress_m": a.progress,
+                })
+            })
+            .collect();
         println!(
             "{}",
             serde_json::to_string_pretty(&serde_json::json!({
-                "map": circuit.name,
+                "map": episode.map,
                 "seed": args.seed,
-                "time_s": state.time,
+                "time_s": episode.time,
                 "agents": agents,
             }))?
         );
         return Ok(());
     }
     println!(
-        "map {} ({:.1} m), seed {}, {:.2} s simulated",
-        circuit.name,
-        circuit.track.length(),
-        args.seed,
-        state.time
+        "map {}, seed {}, {:.2} s simulated",
+        episode.map, args.seed, episode.time
     );
-    for (i, a) in state.agents.iter().enumerate() {
-        let laps: Vec<String> = a
-            .laps
-            .lap_times
-            .iter()
-            .map(|t| format!("{t:.2} s"))
-            .collect();
-        let status = match a.status {
-            AgentStatus::Racing => "still racing at the time limit",
-            AgentStatus::Crashed => "crashed",
-            AgentStatus::Finished => "finished",
+    for (i, a) in episode.agents.iter().enumerate() {
+        let laps: Vec<String> = a.lap_times.iter().map(|t| format!("{t:.2} s")).collect();
+        let status = match a.termination {
+            Termination::TimeLimit => "still racing at the time limit",
+            Termination::Crashed => "crashed",
+            Termination::Finished => "finished",
         };
         println!(
             "car {i}: {status}; laps: {}",

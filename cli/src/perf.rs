@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use paddock_policy::{PurePursuit, PurePursuitParams};
+use paddock_policy::{Driver, PurePursuit, PurePursuitParams};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig};
@@ -74,16 +74,19 @@ fn drive(
     let mut seed = 0u64;
     while busy < budget {
         world.reset(seed, &Starts::Random)?;
-        drivers.iter_mut().for_each(paddock_policy::Driver::reset);
+        drivers.iter_mut().for_each(Driver::reset);
         seed += 1;
         for step in 0..3000u32 {
             let obs = world.observation()?;
             for (i, d) in drivers.iter_mut().enumerate() {
-                let pose = Pose::new(obs.poses_x[i], obs.poses_y[i], obs.poses_theta[i]);
                 if step.is_multiple_of(16) && poses.len() < 4096 {
-                    poses.push(pose);
+                    poses.push(Pose::new(
+                        obs.poses_x[i],
+                        obs.poses_y[i],
+                        obs.poses_theta[i],
+                    ));
                 }
-                actions[i] = d.act_pose(pose, obs.linear_vels_x[i]);
+                actions[i] = d.act(obs, i);
             }
             let t0 = Instant::now();
             world.step(&actions)?;

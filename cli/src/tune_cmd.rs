@@ -151,10 +151,21 @@ pub fn run(args: &TuneArgs) -> Result<()> {
     let train: Vec<u64> = (0..args.seeds as u64)
         .map(|k| task_seed(args.seed, k))
         .collect();
-    let scenario_for = |params: &[f64]| {
-        let mut s = base.clone();
-        s.agents[0].params = params.to_vec();
-        Arc::new(s)
+    // every parameter vector driven from every seed, vector-major
+    let tasks_for = |params: &[Vec<f64>], seeds: &[u64]| -> Vec<EpisodeTask> {
+        params
+            .iter()
+            .flat_map(|p| {
+                let mut sc = base.clone();
+                sc.agents[0].params = p.clone();
+                let sc = Arc::new(sc);
+                seeds.iter().map(move |&seed| EpisodeTask {
+                    scenario: sc.clone(),
+                    seed,
+                    record: None,
+                })
+            })
+            .collect()
     };
 
     std::fs::create_dir_all(&args.out)
@@ -173,17 +184,7 @@ pub fn run(args: &TuneArgs) -> Result<()> {
             break;
         }
         let candidates = opt.ask()?;
-        let tasks: Vec<EpisodeTask> = candidates
-            .iter()
-            .flat_map(|c| {
-                let sc = scenario_for(c);
-                train.iter().map(move |&seed| EpisodeTask {
-                    scenario: sc.clone(),
-                    seed,
-                    record: None,
-                })
-            })
-            .collect();
+        let tasks = tasks_for(&candidates, &train);
         let t0 = Instant::now();
         let results = exec.run_batch(&tasks, &|_| {});
         let rate = tasks.len() as f64 / t0.elapsed().as_secs_f64();
@@ -252,17 +253,7 @@ pub fn run(args: &TuneArgs) -> Result<()> {
         .map(|k| task_seed(args.seed ^ 0x5641_4c49_4441_5445, k))
         .collect();
     let contenders = [best_x.clone(), opt.mean()];
-    let val_tasks: Vec<EpisodeTask> = contenders
-        .iter()
-        .flat_map(|c| {
-            let sc = scenario_for(c);
-            validation.iter().map(move |&seed| EpisodeTask {
-                scenario: sc.clone(),
-                seed,
-                record: None,
-            })
-        })
-        .collect();
+    let val_tasks = tasks_for(&contenders, &validation);
     let mut val_costs = [0.0f64; 2];
     for (i, r) in exec.run_batch(&val_tasks, &|_| {}).into_iter().enumerate() {
         val_costs[i / validation.len()] += cost(&r?, lap_length, args.crash_penalty);
@@ -288,17 +279,9 @@ pub fn run(args: &TuneArgs) -> Result<()> {
     let holdout: Vec<u64> = (0..args.holdout as u64)
         .map(|k| task_seed(args.seed ^ 0x4845_4c44_4f55_5421, k))
         .collect();
-    let mut eval_tasks = Vec::new();
-    for params in [&defaults, &tuned] {
-        let sc = scenario_for(params);
-        for (k, &seed) in holdout.iter().enumerate() {
-            eval_tasks.push(EpisodeTask {
-                scenario: sc.clone(),
-                seed,
-                record: (k == 0).then_some(2),
-            });
-        }
-    }
+    let mut eval_tasks = tasks_for(&[defaults.clone(), tuned.clone()], &holdout);
+    // the tuned lap on the first held-out start is drawn on the map
+    eval_tasks[holdout.len()].record = Some(2);
     let results = exec.run_batch(&eval_tasks, &|_| {});
     let mut episodes = Vec::with_capacity(results.len());
     for r in results {

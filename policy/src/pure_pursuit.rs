@@ -16,6 +16,7 @@ use paddock_sim::track::{Circuit, Track};
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
+use crate::refpath::{RefPath, speed_profile};
 use crate::{Driver, ParamSpec, Sensors};
 
 pub const NAME: &str = "pure-pursuit";
@@ -134,10 +135,7 @@ impl PurePursuitParams {
 #[derive(Debug, Clone)]
 pub struct PurePursuit {
     pub params: PurePursuitParams,
-    xs: Vec<f64>,
-    ys: Vec<f64>,
-    /// Cumulative arc length of the path, closing the loop (`cum[n]` = path length).
-    cum: Vec<f64>,
+    path: RefPath,
     /// Planned speed at each path point.
     profile: Vec<f64>,
     hint: Option<usize>,
@@ -147,36 +145,26 @@ impl PurePursuit {
     /// Follow the circuit's driving line (its raceline where that keeps clear of the
     /// walls, else a line computed inside the map's free space).
     pub fn on_circuit(circuit: &Circuit, params: PurePursuitParams) -> Self {
-        let (xs, ys) = circuit.driving_line().iter().map(|p| (p.x, p.y)).unzip();
-        Self::on_path(xs, ys, params)
+        Self::on_path(RefPath::from_circuit(circuit), params)
     }
 
     /// Follow the track's raceline, or its centerline if it has none.
     pub fn new(track: &Track, params: PurePursuitParams) -> Self {
-        let (xs, ys): (Vec<f64>, Vec<f64>) = match track.raceline() {
-            Some(r) => r.iter().map(|p| (p.x, p.y)).unzip(),
-            None => track.points().iter().map(|p| (p.x, p.y)).unzip(),
-        };
-        Self::on_path(xs, ys, params)
+        Self::on_path(RefPath::from_track(track), params)
     }
 
-    /// Follow the closed path through these points.
-    pub fn on_path(xs: Vec<f64>, ys: Vec<f64>, params: PurePursuitParams) -> Self {
-        let n = xs.len();
-        let mut cum = Vec::with_capacity(n + 1);
-        let mut s = 0.0;
-        for i in 0..n {
-            cum.push(s);
-            let j = (i + 1) % n;
-            s += libm::hypot(xs[j] - xs[i], ys[j] - ys[i]);
-        }
-        cum.push(s);
-        let profile = speed_profile(&xs, &ys, &cum, &params);
+    /// Follow `path` with its own speed profile from the driver's parameters.
+    pub fn on_path(path: RefPath, params: PurePursuitParams) -> Self {
+        let profile = speed_profile(
+            path.kappa(),
+            path.cum(),
+            params.lat_accel,
+            params.brake_decel,
+            params.max_speed,
+        );
         Self {
             params,
-            xs,
-            ys,
-            cum,
+            path,
             profile,
             hint: None,
         }
@@ -187,72 +175,25 @@ impl PurePursuit {
         &self.profile
     }
 
-    fn d2(&self, i: usize, x: f64, y: f64) -> f64 {
-        (self.xs[i] - x) * (self.xs[i] - x) + (self.ys[i] - y) * (self.ys[i] - y)
-    }
-
-    fn nearest(&mut self, x: f64, y: f64) -> usize {
-        let n = self.xs.len();
-        let local = self.hint.and_then(|h| {
-            // walk downhill from the hint in both directions
-            let mut best = h;
-            loop {
-                let next = (best + 1) % n;
-                let prev = (best + n - 1) % n;
-                if self.d2(next, x, y) < self.d2(best, x, y) {
-                    best = next;
-                } else if self.d2(prev, x, y) < self.d2(best, x, y) {
-                    best = prev;
-                } else {
-                    break;
-                }
-            }
-            // a jump (reset, spin) makes the local answer far off: search globally
-            (self.d2(best, x, y) <= 4.0).then_some(best)
-        });
-        let best = local.unwrap_or_else(|| {
-            (0..n)
-                .min_by(|&a, &b| {
-                    self.d2(a, x, y)
-                        .total_cmp(&self.d2(b, x, y))
-                        .then(a.cmp(&b))
-                })
-                .unwrap_or(0)
-        });
-        self.hint = Some(best);
-        best
-    }
-
-    /// The first path index at least `dist` metres along the path from `i`.
-    fn ahead(&self, i: usize, dist: f64) -> usize {
-        let n = self.xs.len();
-        let total = self.cum[n];
-        let mut j = i;
-        for _ in 0..n {
-            if (self.cum[j] - self.cum[i]).rem_euclid(total) >= dist {
-                break;
-            }
-            j = (j + 1) % n;
-        }
-        j
-    }
-
     /// The action for a car at `pose` moving at `speed` (m/s).
     pub fn act_pose(&mut self, pose: Pose, speed: f64) -> Action {
-        let i = self.nearest(pose.x, pose.y);
+        let path = &self.path;
+        let i = path.nearest(pose.x, pose.y, self.hint);
+        self.hint = Some(i);
         let p = &self.params;
         let lookahead = p.lookahead_min + p.lookahead_gain * speed.max(0.0);
         // off the path, aim farther along it, so the car joins it at a shallow angle
-        let off_path = libm::sqrt(self.d2(i, pose.x, pose.y));
-        let j = self.ahead(i, lookahead + OFF_PATH_REACH * off_path);
-        let (dx, dy) = (self.xs[j] - pose.x, self.ys[j] - pose.y);
+        let off_path = libm::sqrt(path.d2(i, pose.x, pose.y));
+        let j = path.ahead(i, lookahead + OFF_PATH_REACH * off_path);
+        let (tx, ty) = path.point(j);
+        let (dx, dy) = (tx - pose.x, ty - pose.y);
         let (s, c) = libm::sincos(pose.theta);
         let local_y = -s * dx + c * dy;
         let dist2 = (dx * dx + dy * dy).max(1e-6);
         let curvature = 2.0 * local_y / dist2;
         let steer = p.steer_gain * libm::atan(p.wheelbase * curvature);
         // look a little ahead for the speed: the car needs time to slow down
-        let k = self.ahead(i, 0.25 * speed.max(0.0));
+        let k = path.ahead(i, 0.25 * speed.max(0.0));
         // far from the path (a start off the line, a slide) the car closes in slowly:
         // converging at full speed overshoots into the far wall
         let off = (off_path - OFF_PATH_DEADBAND).max(0.0);
@@ -278,59 +219,6 @@ impl Driver for PurePursuit {
         let pose = Pose::new(obs.poses_x[me], obs.poses_y[me], obs.poses_theta[me]);
         self.act_pose(pose, obs.linear_vels_x[me])
     }
-}
-
-/// Curvature of the closed polyline at each point (circle through the neighbours two
-/// points away on each side, which smooths sampling noise).
-fn curvature(xs: &[f64], ys: &[f64]) -> Vec<f64> {
-    let n = xs.len();
-    (0..n)
-        .map(|i| {
-            let a = (i + n - 2) % n;
-            let b = (i + 2) % n;
-            let (ax, ay) = (xs[i] - xs[a], ys[i] - ys[a]);
-            let (bx, by) = (xs[b] - xs[i], ys[b] - ys[i]);
-            let (cx, cy) = (xs[b] - xs[a], ys[b] - ys[a]);
-            let cross = ax * by - ay * bx;
-            let la = libm::hypot(ax, ay);
-            let lb = libm::hypot(bx, by);
-            let lc = libm::hypot(cx, cy);
-            let denom = la * lb * lc;
-            if denom > 1e-12 {
-                2.0 * cross / denom
-            } else {
-                0.0
-            }
-        })
-        .collect()
-}
-
-fn speed_profile(xs: &[f64], ys: &[f64], cum: &[f64], p: &PurePursuitParams) -> Vec<f64> {
-    let n = xs.len();
-    let kappa = curvature(xs, ys);
-    let mut v: Vec<f64> = kappa
-        .iter()
-        .map(|k| {
-            let lim = if k.abs() > 1e-9 {
-                libm::sqrt(p.lat_accel / k.abs())
-            } else {
-                f64::INFINITY
-            };
-            lim.min(p.max_speed)
-        })
-        .collect();
-    // backward passes around the loop: v_i <= sqrt(v_{i+1}^2 + 2 a ds)
-    for _ in 0..2 {
-        for k in (0..n).rev() {
-            let j = (k + 1) % n;
-            let ds = cum[k + 1] - cum[k];
-            let lim = libm::sqrt(v[j] * v[j] + 2.0 * p.brake_decel * ds);
-            if lim < v[k] {
-                v[k] = lim;
-            }
-        }
-    }
-    v
 }
 
 #[cfg(test)]

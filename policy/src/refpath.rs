@@ -181,8 +181,38 @@ impl RefPath {
         (p.x - d * sn, p.y + d * cs, p.psi)
     }
 
-    fn d2(&self, i: usize, x: f64, y: f64) -> f64 {
+    /// Path point `i`.
+    pub fn point(&self, i: usize) -> (f64, f64) {
+        (self.xs[i], self.ys[i])
+    }
+
+    /// Curvature at each path point.
+    pub fn kappa(&self) -> &[f64] {
+        &self.kappa
+    }
+
+    /// Cumulative arc length at each path point; the last entry is the loop length.
+    pub fn cum(&self) -> &[f64] {
+        &self.cum
+    }
+
+    /// Squared distance from path point `i` to (x, y).
+    pub fn d2(&self, i: usize, x: f64, y: f64) -> f64 {
         (self.xs[i] - x) * (self.xs[i] - x) + (self.ys[i] - y) * (self.ys[i] - y)
+    }
+
+    /// The first path index at least `dist` metres along the path from index `i`.
+    pub fn ahead(&self, i: usize, dist: f64) -> usize {
+        let n = self.xs.len();
+        let total = self.length();
+        let mut j = i;
+        for _ in 0..n {
+            if (self.cum[j] - self.cum[i]).rem_euclid(total) >= dist {
+                break;
+            }
+            j = (j + 1) % n;
+        }
+        j
     }
 
     /// Index of the path point nearest (x, y): a downhill walk from `hint`, or a global
@@ -272,21 +302,40 @@ pub fn curvature(xs: &[f64], ys: &[f64]) -> Vec<f64> {
 }
 
 fn fallback_profile(kappa: &[f64], cum: &[f64]) -> Vec<f64> {
+    speed_profile(
+        kappa,
+        cum,
+        FALLBACK_LAT_ACCEL,
+        FALLBACK_BRAKE,
+        FALLBACK_MAX_SPEED,
+    )
+}
+
+/// A speed profile for a closed path: v = sqrt(`lat_accel` / |kappa|) capped at
+/// `max_speed`, then backward passes around the loop so the car can brake from each
+/// speed to the next at `brake` (v_i <= sqrt(v_{i+1}^2 + 2 brake ds)).
+pub fn speed_profile(
+    kappa: &[f64],
+    cum: &[f64],
+    lat_accel: f64,
+    brake: f64,
+    max_speed: f64,
+) -> Vec<f64> {
     let n = kappa.len();
     let mut v: Vec<f64> = kappa
         .iter()
         .map(|k| {
             if k.abs() > 1e-9 {
-                libm::sqrt(FALLBACK_LAT_ACCEL / k.abs()).min(FALLBACK_MAX_SPEED)
+                libm::sqrt(lat_accel / k.abs()).min(max_speed)
             } else {
-                FALLBACK_MAX_SPEED
+                max_speed
             }
         })
         .collect();
     for _ in 0..2 {
         for k in (0..n).rev() {
             let j = (k + 1) % n;
-            let lim = libm::sqrt(v[j] * v[j] + 2.0 * FALLBACK_BRAKE * (cum[k + 1] - cum[k]));
+            let lim = libm::sqrt(v[j] * v[j] + 2.0 * brake * (cum[k + 1] - cum[k]));
             v[k] = v[k].min(lim);
         }
     }

@@ -103,19 +103,8 @@ pub fn run_episode(
         StartSpec::Random => Starts::Random,
         StartSpec::Poses(p) => Starts::Poses(p.clone()),
         StartSpec::RandomReversed => {
-            // the same random grid as `Random`, then the cars swap slots
-            let mut probe = World::new(circuit.clone(), world.config().clone())?;
-            probe.reset(seed, &Starts::Random)?;
-            let obs = probe.observation()?;
-            let mut poses: Vec<_> = (0..n)
-                .map(|i| {
-                    paddock_sim::geometry::Pose::new(
-                        obs.poses_x[i],
-                        obs.poses_y[i],
-                        obs.poses_theta[i],
-                    )
-                })
-                .collect();
+            // the same random grid as `Random`, with the cars in reverse slot order
+            let mut poses = world.start_poses_for(seed, &Starts::Random)?;
             poses.reverse();
             Starts::Poses(poses)
         }

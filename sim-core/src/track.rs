@@ -17,6 +17,7 @@ use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use serde::{Deserialize, Serialize};
 
+use crate::geometry::Pose;
 use crate::map::{Map, MapError};
 
 /// Errors while loading a track or a circuit. Each names the file and what is wrong.
@@ -254,36 +255,41 @@ impl Track {
         }
     }
 
+    /// The nearest of `segments` to (x, y) as (squared distance, segment, t, lateral);
+    /// ties go to the lower index, so the result never depends on the search order.
+    fn nearest_segment(
+        &self,
+        segments: impl Iterator<Item = usize>,
+        x: f64,
+        y: f64,
+    ) -> (f64, usize, f64, f64) {
+        let mut best = (f64::INFINITY, 0usize, 0.0, 0.0);
+        for i in segments {
+            let (d2, t, lat) = self.project_on_segment(i, x, y);
+            if d2 < best.0 || (d2 == best.0 && i < best.1) {
+                best = (d2, i, t, lat);
+            }
+        }
+        best
+    }
+
+    /// Is a nearest-segment answer beyond the radius within which the segment grid's
+    /// candidate lists are exact?
+    fn beyond_grid(&self, d2: f64) -> bool {
+        d2.is_nan() || d2.sqrt() > self.grid.exact_radius
+    }
+
     /// Project a point onto the centerline: the nearest point of the polyline.
     pub fn project(&self, x: f64, y: f64) -> Projection {
         let n = self.points.len();
-        let mut best = (f64::INFINITY, 0usize, 0.0, 0.0);
-        let consider = |i: usize, best: &mut (f64, usize, f64, f64)| {
-            let (d2, t, lat) = self.project_on_segment(i, x, y);
-            // ties go to the lower index so the result never depends on search order
-            if d2 < best.0 || (d2 == best.0 && i < best.1) {
-                *best = (d2, i, t, lat);
-            }
+        let mut best = match self.grid.candidates(x, y) {
+            Some(list) => self.nearest_segment(list.iter().map(|&i| i as usize), x, y),
+            None => self.nearest_segment(0..n, x, y),
         };
-        let candidates = self.grid.candidates(x, y);
-        match candidates {
-            Some(list) => {
-                for &i in list {
-                    consider(i as usize, &mut best);
-                }
-            }
-            None => {
-                for i in 0..n {
-                    consider(i, &mut best);
-                }
-            }
-        }
         // The grid lists every segment within its search radius of the cell; a point
         // farther than that from every listed segment may have a nearer unlisted one.
-        if best.0.is_nan() || best.0.sqrt() > self.grid.exact_radius {
-            for i in 0..n {
-                consider(i, &mut best);
-            }
+        if self.beyond_grid(best.0) {
+            best = self.nearest_segment(0..n, x, y);
         }
         self.projection_from(best.1, best.2, best.3)
     }
@@ -295,22 +301,12 @@ impl Track {
         if n <= 2 * LOCAL_WINDOW + 1 {
             return self.project(x, y);
         }
-        let mut best = (f64::INFINITY, 0usize, 0.0, 0.0);
-        for k in 0..=2 * LOCAL_WINDOW {
-            let i = (hint + n + k - LOCAL_WINDOW) % n;
-            let (d2, t, lat) = self.project_on_segment(i, x, y);
-            if d2 < best.0 || (d2 == best.0 && i < best.1) {
-                best = (d2, i, t, lat);
-            }
-        }
+        let first = (hint + n - LOCAL_WINDOW) % n;
+        let best = self.nearest_segment((0..=2 * LOCAL_WINDOW).map(|k| (first + k) % n), x, y);
         // Accept the local answer only if it lies strictly inside the window; otherwise
         // the car may have moved on (or jumped) and the global search decides.
-        let offset = (best.1 + n - (hint + n - LOCAL_WINDOW) % n) % n;
-        if offset == 0
-            || offset == 2 * LOCAL_WINDOW
-            || best.0.is_nan()
-            || best.0.sqrt() > self.grid.exact_radius
-        {
+        let offset = (best.1 + n - first) % n;
+        if offset == 0 || offset == 2 * LOCAL_WINDOW || self.beyond_grid(best.0) {
             return self.project(x, y);
         }
         self.projection_from(best.1, best.2, best.3)
@@ -776,8 +772,6 @@ fn find_with_suffix(dir: &Path, suffix: &str) -> Result<PathBuf, TrackError> {
         message: format!("no *{suffix} file in this directory"),
     })
 }
-
-use crate::geometry::Pose;
 
 #[cfg(test)]
 mod tests {

@@ -141,22 +141,8 @@ pub enum TrackGenError {
     },
 }
 
-/// One raceline point, as in the TUM raceline CSV.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct RacelinePoint {
-    /// Arc length from the first point (m).
-    pub s: f64,
-    pub x: f64,
-    pub y: f64,
-    /// Heading (rad, counter-clockwise from +x), in [0, 2 pi).
-    pub psi: f64,
-    /// Signed curvature (1/m, positive = turning left).
-    pub kappa: f64,
-    /// Speed (m/s).
-    pub vx: f64,
-    /// Longitudinal acceleration to the next point (m/s^2).
-    pub ax: f64,
-}
+/// One raceline point, as in the TUM raceline CSV (the same type tracks load).
+pub use crate::track::RacelinePoint;
 
 /// An 8-bit grey occupancy image, row-major, row 0 at the top (highest y).
 #[derive(Debug, Clone, PartialEq)]
@@ -279,16 +265,11 @@ fn finish(
         hi: &hi,
         step: shape::closed_length(&pts) / n as f64,
     };
-    let alpha = raceline::optimal_offsets(&corridor);
-    let line: Vec<[f64; 2]> = (0..n)
-        .map(|i| {
-            [
-                pts[i][0] + alpha[i] * normals[i][0],
-                pts[i][1] + alpha[i] * normals[i][1],
-            ]
-        })
-        .collect();
-    let raceline = raceline::build(&line, RACELINE_SPACING, &config.speed);
+    let raceline = raceline::build(
+        &raceline::optimal_line(&corridor),
+        RACELINE_SPACING,
+        &config.speed,
+    );
 
     let (occupancy, origin) = raster::render(&pts, &half, config.resolution, config.margin_m);
     GeneratedTrack {
@@ -499,7 +480,7 @@ pub fn raceline_in_map(
     track: &crate::track::Track,
     margin: f64,
     limits: &SpeedLimits,
-) -> Vec<crate::track::RacelinePoint> {
+) -> Vec<RacelinePoint> {
     const STEP: f64 = 0.1;
     const MAX_REACH: f64 = 6.0;
     let length = track.length();
@@ -543,25 +524,5 @@ pub fn raceline_in_map(
         hi: &hi,
         step,
     };
-    let alpha = raceline::optimal_offsets(&corridor);
-    let line: Vec<[f64; 2]> = (0..n)
-        .map(|i| {
-            [
-                pts[i][0] + alpha[i] * normals[i][0],
-                pts[i][1] + alpha[i] * normals[i][1],
-            ]
-        })
-        .collect();
-    raceline::build(&line, RACELINE_SPACING, limits)
-        .into_iter()
-        .map(|p| crate::track::RacelinePoint {
-            s: p.s,
-            x: p.x,
-            y: p.y,
-            psi: p.psi,
-            kappa: p.kappa,
-            vx: p.vx,
-            ax: p.ax,
-        })
-        .collect()
+    raceline::build(&raceline::optimal_line(&corridor), RACELINE_SPACING, limits)
 }

@@ -453,9 +453,8 @@ impl World {
     /// Start an episode: place the cars, place the obstacles, observe.
     pub fn reset(&mut self, seed: u64, starts: &Starts) -> Result<&Observation, WorldError> {
         let root = Rng::new(seed);
-        let mut start_rng = root.fork(1);
         let mut obstacle_rng = root.fork(2);
-        let poses = self.start_poses(starts, &mut start_rng)?;
+        let poses = self.start_poses_for(seed, starts)?;
         let obstacles = self.place_obstacles(&poses, &mut obstacle_rng)?;
         let track = &self.circuit.track;
         let agents = poses
@@ -481,7 +480,7 @@ impl World {
             observation,
         });
         let n = self.num_agents();
-        self.resolve_collisions(&vec![None; n], &mut vec![false; n]);
+        self.resolve_collisions(&[], &mut vec![false; n]);
         self.observe();
         Ok(&self.state.as_ref().expect("state set above").observation)
     }
@@ -513,12 +512,17 @@ impl World {
         }
         let dt = self.config.dt;
         let state = self.state.as_mut().ok_or(WorldError::NotReset)?;
-        let mut before: Vec<Option<Vehicle>> = vec![None; n];
+        // Stop mode puts a colliding car back where it was: keep the states before the step.
+        let stop_mode = self.config.collision_mode == CollisionMode::Stop;
+        let mut before: Vec<Option<Vehicle>> = Vec::new();
+        if stop_mode {
+            before.resize(n, None);
+        }
         for (i, (agent, a)) in state.agents.iter_mut().zip(actions).enumerate() {
             if agent.status != AgentStatus::Racing {
                 continue;
             }
-            if self.config.collision_mode == CollisionMode::Stop {
+            if stop_mode {
                 before[i] = Some(agent.vehicle.clone());
             }
             agent
@@ -567,16 +571,20 @@ impl World {
     }
 
     /// Detect collisions of the cars in their current poses and apply the collision
-    /// mode. `before` holds each car's vehicle state before the step (Stop mode).
+    /// mode. `before` holds each car's vehicle state before the step (Stop mode; empty
+    /// otherwise). Leaves every car's final box in `self.shapes` for the scans.
     fn resolve_collisions(&mut self, before: &[Option<Vehicle>], collided: &mut [bool]) {
         let state = self.state.as_ref().expect("reset before collisions");
         let n = state.agents.len();
-        let boxes: Vec<Obb> = state
-            .agents
-            .iter()
-            .enumerate()
-            .map(|(i, a)| self.car_box(i, &a.vehicle))
-            .collect();
+        let mut boxes = std::mem::take(&mut self.shapes);
+        boxes.clear();
+        boxes.extend(
+            state
+                .agents
+                .iter()
+                .enumerate()
+                .map(|(i, a)| self.car_box(i, &a.vehicle)),
+        );
         let map = &self.circuit.map;
         let mut hit = vec![false; n];
         for i in 0..n {
@@ -620,27 +628,32 @@ impl World {
                     agent.finish_time = Some(state.time);
                 }
                 CollisionMode::Stop => {
-                    if let Some(prev) = &before[i] {
+                    if let Some(prev) = before.get(i).and_then(Option::as_ref) {
                         agent.vehicle = prev.clone();
+                        let p = &self.config.agents[i].params;
+                        boxes[i] = Obb::car(agent.vehicle.pose(), p.length, p.width);
                     }
                     agent.vehicle.halt();
                 }
                 CollisionMode::Ignore => {}
             }
         }
+        self.shapes = boxes;
     }
 
     fn observe(&mut self) {
         let state = self.state.as_mut().expect("reset before observe");
         let beams = self.config.lidar.num_beams;
-        // Boxes of every car still on the track, for the scans.
-        self.shapes.clear();
+        // The cars' boxes (`self.shapes`, left by the collision pass) that scans see:
+        // every car still on the track.
         self.present.clear();
-        for (i, a) in state.agents.iter().enumerate() {
-            let p = &self.config.agents[i].params;
-            self.shapes
-                .push(Obb::car(a.vehicle.pose(), p.length, p.width));
-            self.present.push(a.status != AgentStatus::Finished);
+        if self.config.agents.iter().any(|a| a.scan) {
+            self.present.extend(
+                state
+                    .agents
+                    .iter()
+                    .map(|a| a.status != AgentStatus::Finished),
+            );
         }
         let obs = &mut state.observation;
         for (i, agent) in state.agents.iter_mut().enumerate() {
@@ -684,6 +697,11 @@ impl World {
                 self.lidar.add_noise(out, &mut agent.noise);
             }
         }
+    }
+
+    /// The start poses `reset(seed, starts)` places the cars at, without resetting.
+    pub fn start_poses_for(&self, seed: u64, starts: &Starts) -> Result<Vec<Pose>, WorldError> {
+        self.start_poses(starts, &mut Rng::new(seed).fork(1))
     }
 
     fn start_poses(&self, starts: &Starts, rng: &mut Rng) -> Result<Vec<Pose>, WorldError> {

@@ -1,29 +1,13 @@
 //! Circuits (map + track) on the shipped maps and on the 24 real tracks in ../shared/maps:
 //! every one loads, places cars, steps with scans; lookups by name; errors.
 
+mod common;
+
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use paddock_sim::track::{Circuit, TrackError, list_circuit_dirs};
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
-
-fn shared_maps() -> Option<PathBuf> {
-    if let Ok(p) = std::env::var("PADDOCK_SHARED") {
-        return Some(PathBuf::from(p).join("maps"));
-    }
-    let mut dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    while let Some(parent) = dir.parent() {
-        let candidate = parent.join("shared/maps");
-        if candidate.is_dir() {
-            return Some(candidate);
-        }
-        dir = parent.to_path_buf();
-    }
-    if std::env::var("PADDOCK_ALLOW_MISSING_SHARED").as_deref() == Ok("1") {
-        return None;
-    }
-    panic!("shared/maps not found: set PADDOCK_SHARED, or PADDOCK_ALLOW_MISSING_SHARED=1 to skip");
-}
 
 fn exercise(circuit: &Arc<Circuit>) {
     let l = circuit.track.length();
@@ -67,7 +51,9 @@ fn every_shipped_map_runs() {
 
 #[test]
 fn every_real_track_runs() {
-    let Some(maps) = shared_maps() else { return };
+    let Some(maps) = common::shared("maps") else {
+        return;
+    };
     let dirs = list_circuit_dirs(&maps);
     assert!(dirs.len() >= 20, "{dirs:?}");
     for d in dirs {

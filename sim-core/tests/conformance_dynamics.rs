@@ -9,7 +9,9 @@
 //! from this crate to a directory that holds `shared/conformance`. If it is missing the
 //! tests fail, unless `PADDOCK_ALLOW_MISSING_SHARED=1`.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 
 use paddock_sim::dynamics::{Vehicle, VehicleState};
 use paddock_sim::geometry::wrap_angle;
@@ -42,34 +44,6 @@ const COLUMNS: [&str; 7] = [
     "yaw_rate",
     "slip_angle",
 ];
-
-fn vectors_dir() -> Option<PathBuf> {
-    let rel = Path::new("conformance").join("f1tenth_gym_dynamics");
-    if let Some(shared) = std::env::var_os("PADDOCK_SHARED") {
-        let dir = PathBuf::from(shared).join(&rel);
-        return dir.is_dir().then_some(dir);
-    }
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .ancestors()
-        .map(|a| a.join("shared").join(&rel))
-        .find(|d| d.is_dir())
-}
-
-/// The vectors folder, or `None` when it is absent and that is explicitly allowed.
-fn vectors_or_skip() -> Option<PathBuf> {
-    match vectors_dir() {
-        Some(d) => Some(d),
-        None if std::env::var("PADDOCK_ALLOW_MISSING_SHARED").as_deref() == Ok("1") => {
-            eprintln!("conformance vectors not found; skipped (PADDOCK_ALLOW_MISSING_SHARED=1)");
-            None
-        }
-        None => panic!(
-            "conformance vectors shared/conformance/f1tenth_gym_dynamics not found: set \
-             PADDOCK_SHARED to the `shared` directory (or clone it beside the repository), \
-             or set PADDOCK_ALLOW_MISSING_SHARED=1 to skip"
-        ),
-    }
-}
 
 struct Row {
     t: f64,
@@ -192,7 +166,9 @@ fn check_folder(dir: &Path, folder: &str, p: &VehicleParams, cases: &[&str], t_m
 
 #[test]
 fn main_branch_forward_cases_match() {
-    let Some(dir) = vectors_or_skip() else { return };
+    let Some(dir) = common::shared("conformance/f1tenth_gym_dynamics") else {
+        return;
+    };
     check_folder(
         &dir,
         "main",
@@ -204,7 +180,9 @@ fn main_branch_forward_cases_match() {
 
 #[test]
 fn v1_branch_all_cases_match() {
-    let Some(dir) = vectors_or_skip() else { return };
+    let Some(dir) = common::shared("conformance/f1tenth_gym_dynamics") else {
+        return;
+    };
     let p = VehicleParams {
         kinematic_branch: KinematicBranch::V1,
         ..Default::default()
@@ -216,7 +194,9 @@ fn v1_branch_all_cases_match() {
 
 #[test]
 fn main_branch_reverse_matches_until_divergence_then_stays_bounded() {
-    let Some(dir) = vectors_or_skip() else { return };
+    let Some(dir) = common::shared("conformance/f1tenth_gym_dynamics") else {
+        return;
+    };
     let p = VehicleParams::default();
     check_folder(&dir, "main", &p, &[REVERSE_CASE], MAIN_REVERSE_VALID_UNTIL);
     let rows = read_case(&dir.join(format!("{REVERSE_CASE}.csv")));

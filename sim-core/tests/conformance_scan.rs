@@ -5,36 +5,15 @@
 //! - `scan` is within one map cell of the reference except where the reference errs by
 //!   tunnelling past grazed corners or by its quantised beam directions (counted).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig};
 use paddock_sim::map::{Map, OccupancyRule};
 
 const CASES: [&str; 4] = ["room_box", "diag_pillar", "open_field", "open_field_corner"];
-
-/// The shared folder: `$PADDOCK_SHARED`, else a `shared/` beside an ancestor of this
-/// crate that has `shared/conformance`. `None` only if allowed to be missing.
-fn shared_dir() -> Option<PathBuf> {
-    if let Some(dir) = std::env::var_os("PADDOCK_SHARED") {
-        return Some(PathBuf::from(dir));
-    }
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    for dir in manifest.ancestors() {
-        let candidate = dir.join("shared");
-        if candidate.join("conformance").is_dir() {
-            return Some(candidate);
-        }
-    }
-    if std::env::var("PADDOCK_ALLOW_MISSING_SHARED").as_deref() == Ok("1") {
-        eprintln!("shared/conformance not found; skipped (PADDOCK_ALLOW_MISSING_SHARED=1)");
-        return None;
-    }
-    panic!(
-        "shared/conformance not found: set PADDOCK_SHARED to the shared folder, or \
-         PADDOCK_ALLOW_MISSING_SHARED=1 to skip"
-    );
-}
 
 struct Case {
     name: &'static str,
@@ -64,7 +43,7 @@ fn read_rows(path: &Path) -> Vec<Vec<f64>> {
 }
 
 fn load_cases() -> Option<Vec<Case>> {
-    let dir = shared_dir()?.join("conformance/f1tenth_gym_scan");
+    let dir = common::shared("conformance/f1tenth_gym_scan")?;
     let cases = CASES
         .iter()
         .map(|&name| {

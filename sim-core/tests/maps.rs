@@ -1,6 +1,8 @@
 //! Map loading on the shipped race tracks, the map cache, error reporting, origin yaw,
 //! and a throughput measurement of the LIDAR on real tracks (ignored by default).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -8,26 +10,9 @@ use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig};
 use paddock_sim::map::{Map, MapError};
 
-/// `$PADDOCK_SHARED`, else a `shared/` beside an ancestor of this crate holding `maps/`.
+/// The shared folder holding `maps/`.
 fn shared_dir() -> Option<PathBuf> {
-    if let Some(dir) = std::env::var_os("PADDOCK_SHARED") {
-        return Some(PathBuf::from(dir));
-    }
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    for dir in manifest.ancestors() {
-        let candidate = dir.join("shared");
-        if candidate.join("maps").is_dir() {
-            return Some(candidate);
-        }
-    }
-    if std::env::var("PADDOCK_ALLOW_MISSING_SHARED").as_deref() == Ok("1") {
-        eprintln!("shared/maps not found; skipped (PADDOCK_ALLOW_MISSING_SHARED=1)");
-        return None;
-    }
-    panic!(
-        "shared/maps not found: set PADDOCK_SHARED to the shared folder, or \
-         PADDOCK_ALLOW_MISSING_SHARED=1 to skip"
-    );
+    common::shared("maps").and_then(|m| m.parent().map(Path::to_path_buf))
 }
 
 /// (yaml, centerline csv) of every track folder in shared/maps.

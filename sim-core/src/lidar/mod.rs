@@ -21,6 +21,12 @@ use crate::geometry::{Obb, Pose};
 use crate::map::Map;
 use crate::rng::Rng;
 
+thread_local! {
+    /// The ray batch of this thread's scans (see `Lidar::scan_chunks`).
+    static SCAN_BATCH: std::cell::Cell<Option<Box<march::Batch>>> =
+        const { std::cell::Cell::new(None) };
+}
+
 /// LIDAR parameters. Defaults are those of the f1tenth_gym reference (Hokuyo UST-10LX).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -174,7 +180,9 @@ impl Lidar {
     #[inline(always)]
     fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
         let n = out.len();
-        let mut batch = march::Batch::new();
+        // The ray batch (tens of KiB) is rewritten for every chunk, so one per thread
+        // serves every scan instead of a fresh allocation each time.
+        let mut batch = SCAN_BATCH.take().unwrap_or_else(march::Batch::new);
         let mut limits = [0.0; march::CHUNK];
         let mut start = 0;
         while start < n {
@@ -209,6 +217,7 @@ impl Lidar {
             }
             start += len;
         }
+        SCAN_BATCH.set(Some(batch));
     }
 
     /// The f1tenth_gym reference scan (no noise), bit-for-bit: beam directions from its

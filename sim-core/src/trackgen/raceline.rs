@@ -24,6 +24,18 @@ pub(super) struct Corridor<'a> {
     pub step: f64,
 }
 
+/// The optimal line itself: each centerline point moved along its normal by its optimal
+/// offset.
+pub(super) fn optimal_line(c: &Corridor) -> Vec<[f64; 2]> {
+    let alpha = optimal_offsets(c);
+    c.points
+        .iter()
+        .zip(c.normals)
+        .zip(&alpha)
+        .map(|((p, nrm), a)| [p[0] + a * nrm[0], p[1] + a * nrm[1]])
+        .collect()
+}
+
 /// Optimal lateral offsets at every centerline point.
 pub(super) fn optimal_offsets(c: &Corridor) -> Vec<f64> {
     let n = c.points.len();
