@@ -8,7 +8,7 @@ export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/paddock/target}"
 cargo build --release --locked -q -p paddock
 P="$CARGO_TARGET_DIR/release/paddock"
 N="${1:-20}"
-drivers=(pure-pursuit follow-the-gap lattice mlp)
+drivers=(pure-pursuit follow-the-gap lattice rrt-star mlp)
 maps=(lakeside quarry harbour)
 echo "| task | map | policy | opponent | episodes | lap time [s] | success | crash | win |"
 echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"

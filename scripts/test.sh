@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Runs every check and test of Paddock: formatting, clippy, the Rust test suites
-# (unit, conformance against f1tenth_gym, end-to-end). Installs what it needs first.
+# (unit, conformance against f1tenth_gym, end-to-end across real broker and worker
+# processes, CURVE keys, the Docker deployment), then the Python client's tests.
+# Installs what it needs first.
 #
 # The conformance tests read ../shared (the f1tenth_gym reference vectors and the real
 # race tracks) beside this checkout; set PADDOCK_SHARED to point elsewhere.
@@ -20,3 +22,5 @@ echo "== cargo test (release: the conformance and simulator tests step millions 
 cargo test --workspace --release --locked
 echo "== benchmarks compile"
 cargo bench --workspace --locked --no-run
+echo "== Python client (pytest against a real paddock serve)"
+bash scripts/python.sh

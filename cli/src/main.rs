@@ -1,10 +1,18 @@
 //! `paddock`: the command-line front door of Paddock.
 
+mod bridge_cmd;
+mod cluster;
 mod demo;
+mod keys;
 mod maps_generate;
 mod perf;
+mod perf_cluster;
 mod plots;
+mod remote;
 mod rollout_cmd;
+mod sysid_cmd;
+mod sysid_plots;
+mod sysid_synth;
 mod tune_cmd;
 
 use std::path::PathBuf;
@@ -21,6 +29,18 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// This worker's or client's CURVE key file (from `paddock keys generate`), for a
+    /// broker that requires keys; needs --broker-key.
+    #[arg(long, global = true, env = "PADDOCK_KEY_FILE", value_name = "FILE")]
+    key: Option<PathBuf>,
+    /// The broker's public key file.
+    #[arg(
+        long,
+        global = true,
+        env = "PADDOCK_BROKER_KEY_FILE",
+        value_name = "FILE"
+    )]
+    broker_key: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -40,11 +60,35 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// The reality-gap tool: find and fit the physics a recording shows the simulator lacks
+    /// (`paddock sysid synth` writes a recording with hidden effects).
+    Sysid(sysid_cmd::SysidArgs),
+    /// The ROS 2 bridge: a driver on the car, the software-in-the-loop car, recordings.
+    Bridge(bridge_cmd::BridgeArgs),
     /// Shipped maps and the track generator.
     Maps {
         #[command(subcommand)]
         command: MapsCommand,
     },
+    /// Run the broker: clients on --bind, workers on --workers, jobs stored in --state.
+    Broker(cluster::BrokerArgs),
+    /// Run a worker: connect to a broker and run its tasks on all cores.
+    Worker(cluster::WorkerArgs),
+    /// A broker and local workers in one process on loopback; prints the client endpoint.
+    Serve(cluster::ServeArgs),
+    /// A broker's workers, queue depth and throughput.
+    Status(cluster::StatusArgs),
+    /// The jobs a broker stores: list, status, wait, cancel, result.
+    Jobs(cluster::JobsArgs),
+    /// Measure rollouts/s through a broker against local runs, and 1 -> 2 worker scaling.
+    PerfCluster(perf_cluster::PerfClusterArgs),
+    /// CURVE keys for a broker open to the network.
+    Keys {
+        #[command(subcommand)]
+        command: keys::KeysCommand,
+    },
+    /// Health check of a broker or worker container: its health file is fresh.
+    Health(keys::HealthArgs),
 }
 
 #[derive(Subcommand)]
@@ -70,18 +114,28 @@ fn main() {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
-    let result = match cli.command {
+    let result = client_security(&cli).and_then(|()| match cli.command {
         Command::Tune(args) => tune_cmd::run(&args),
         Command::Perf(args) => perf::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Rollout(args) => rollout_cmd::rollout(&args),
         Command::Benchmark(args) => rollout_cmd::benchmark(&args),
         Command::Drivers { json } => list_drivers(json),
+        Command::Sysid(args) => sysid_cmd::run(&args),
+        Command::Bridge(args) => bridge_cmd::run(&args),
+        Command::Broker(args) => cluster::broker(&args),
+        Command::Worker(args) => cluster::worker(&args),
+        Command::Serve(args) => cluster::serve(&args),
+        Command::Status(args) => cluster::status(&args),
+        Command::Jobs(args) => cluster::jobs(&args),
+        Command::PerfCluster(args) => perf_cluster::run(&args),
+        Command::Keys { command } => keys::run(&command),
+        Command::Health(args) => keys::health(&args),
         Command::Maps { command } => match command {
             MapsCommand::List { dirs, json } => maps_list(&dirs, json),
             MapsCommand::Generate(args) => maps_generate::run(&args),
         },
-    };
+    });
     if let Err(e) = result {
         eprintln!("error: {e:#}");
         std::process::exit(1);
@@ -190,4 +244,22 @@ fn list_drivers(json: bool) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Reads `--key` / `--broker-key` into the client security of this process.
+fn client_security(cli: &Cli) -> Result<()> {
+    match (&cli.key, &cli.broker_key) {
+        (None, None) => Ok(()),
+        (Some(key), Some(broker)) => {
+            let keys = paddock_libzmq::KeyPair::read(key)?;
+            let server_public = paddock_libzmq::read_public(broker)?;
+            remote::set_security(paddock_libzmq::Curve::Client {
+                keys,
+                server_public,
+            });
+            Ok(())
+        }
+        (Some(_), None) => anyhow::bail!("--key needs --broker-key (the broker's public key file)"),
+        (None, Some(_)) => anyhow::bail!("--broker-key needs --key (this peer's key file)"),
+    }
 }

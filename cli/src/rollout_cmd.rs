@@ -1,4 +1,5 @@
-//! `paddock rollout` and `paddock benchmark`: batches of episodes run locally on all cores.
+//! `paddock rollout` and `paddock benchmark`: batches of episodes run locally on all
+//! cores, or through a broker with `--endpoint`.
 
 use std::sync::Arc;
 
@@ -8,8 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use paddock_policy::{ParamSpec, driver_info, params_from_overrides};
 use paddock_rollout::benchmark::{BenchmarkReport, BenchmarkSpec, Task};
 use paddock_rollout::{
-    AgentSpec, EpisodeResult, EpisodeTask, Executor, LocalExecutor, RolloutError, Scenario,
-    task_seed,
+    AgentSpec, EpisodeResult, EpisodeTask, Executor, RolloutError, Scenario, task_seed,
 };
 use paddock_sim::track::DEFAULT_MAP;
 
@@ -97,6 +97,9 @@ pub struct RolloutArgs {
     /// Worker threads (0: one per core).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Run the episodes through the broker at this client endpoint instead of locally.
+    #[arg(long, value_name = "URL")]
+    endpoint: Option<String>,
     /// With --json: include each episode's trajectory, sampled every N steps.
     #[arg(long, value_name = "N")]
     trajectory: Option<u32>,
@@ -124,8 +127,8 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
             record: args.trajectory.map(|n| n.max(1)),
         })
         .collect();
-    let exec = LocalExecutor::new(args.threads)?;
-    let results = run_tasks(&exec, &tasks, "rollout");
+    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
+    let results = run_tasks(exec.as_ref(), &tasks, "rollout");
     let mut episodes = Vec::with_capacity(results.len());
     for (k, r) in results.into_iter().enumerate() {
         episodes.push(r.with_context(|| format!("episode {k}"))?);
@@ -242,6 +245,9 @@ pub struct BenchmarkArgs {
     time_limit: f64,
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Run the episodes through the broker at this client endpoint instead of locally.
+    #[arg(long, value_name = "URL")]
+    endpoint: Option<String>,
     #[arg(long)]
     json: bool,
     /// Print a markdown table.
@@ -276,8 +282,8 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
         time_limit: args.time_limit,
     };
     let tasks = spec.tasks()?;
-    let exec = LocalExecutor::new(args.threads)?;
-    let results = run_tasks(&exec, &tasks, &format!("benchmark {}", args.task));
+    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
+    let results = run_tasks(exec.as_ref(), &tasks, &format!("benchmark {}", args.task));
     if let Some(Err(e)) = results.iter().find(|r| r.is_err()) {
         bail!("an episode failed: {e}");
     }

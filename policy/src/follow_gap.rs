@@ -40,7 +40,7 @@ pub fn param_specs() -> Vec<ParamSpec> {
         },
         ParamSpec {
             name: "window",
-            default: 5.0,
+            default: 3.0,
             lo: 1.0,
             hi: 31.0,
             doc: "moving-average window, beams (rounded)",
@@ -54,7 +54,7 @@ pub fn param_specs() -> Vec<ParamSpec> {
         },
         ParamSpec {
             name: "bubble_radius",
-            default: 0.4,
+            default: 0.6,
             lo: 0.0,
             hi: 2.0,
             doc: "radius of the safety bubble cleared around the closest point, m",

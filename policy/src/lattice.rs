@@ -1,4 +1,6 @@
-//! A lattice planner for racing against others, in the raceline's Frenet frame.
+//! A lattice planner for racing against others, in the Frenet frame of the circuit's
+//! driving line (its raceline, or a line inside the map's free space) with its hairpins
+//! rounded ([`crate::refpath::ROUNDING_PASSES`]).
 //!
 //! Every `replan_every` steps (receding horizon) the planner samples goal states ahead
 //! on the raceline: `num_lengths` distances (from `horizon_min`, or `horizon_time`
@@ -41,7 +43,7 @@ use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
-use crate::refpath::RefPath;
+use crate::refpath::{ROUNDING_PASSES, RefPath};
 use crate::{Driver, ParamSpec, PolicyError, Sensors};
 
 pub const NAME: &str = "lattice";
@@ -60,6 +62,11 @@ const WALL_RETURN: f64 = 0.15;
 const CAR_RETURN: f64 = 0.3;
 /// Distance within which a predicted car adds proximity cost, m.
 const PROXIMITY: f64 = 2.0;
+/// Speed through a curve too tight for the steering, or past a wall the car is
+/// already grazing, m/s.
+const CREEP: f64 = 1.0;
+/// Another car whose driving-line arc length is this far behind this car's is behind, m.
+const BEHIND: f64 = 0.3;
 /// Replan when the car is this far from its plan, m.
 const OFF_PLAN: f64 = 0.4;
 
@@ -75,12 +82,12 @@ pub fn param_specs() -> Vec<ParamSpec> {
     vec![
         p(
             "replan_every",
-            5.0,
+            15.0,
             1.0,
             50.0,
             "steps between replans (rounded)",
         ),
-        p("horizon_min", 4.0, 1.0, 20.0, "shortest goal distance, m"),
+        p("horizon_min", 5.0, 1.0, 20.0, "shortest goal distance, m"),
         p(
             "horizon_time",
             0.8,
@@ -188,12 +195,12 @@ pub fn param_specs() -> Vec<ParamSpec> {
         ),
         p(
             "lat_accel",
-            6.0,
+            3.0,
             1.0,
             15.0,
             "lateral acceleration allowed on the chosen path, m/s^2",
         ),
-        p("max_speed", 9.0, 1.0, 20.0, "speed cap, m/s"),
+        p("max_speed", 5.0, 1.0, 20.0, "speed cap, m/s"),
         p(
             "brake_decel",
             5.0,
@@ -334,6 +341,9 @@ struct Other {
     d: f64,
     /// Heading relative to the raceline.
     e: f64,
+    /// Behind this car: it is the other car's to avoid (braking for a car that closes
+    /// in from behind would only invite it into this one).
+    behind: bool,
     /// Speed along the raceline, m/s.
     vs: f64,
     x: f64,
@@ -363,7 +373,7 @@ impl Lattice {
         let lidar = LidarConfig::default();
         Self {
             params,
-            path: Arc::new(RefPath::from_circuit(circuit)),
+            path: Arc::new(RefPath::from_circuit(circuit).smoothed(ROUNDING_PASSES)),
             map: circuit.map.clone(),
             fov: lidar.fov,
             max_range: lidar.max_range,
@@ -379,6 +389,7 @@ impl Lattice {
 
     fn perceive(&mut self, obs: &Observation, me: usize, pose: Pose) {
         self.others.clear();
+        let own_s = self.path.project(pose.x, pose.y, self.ref_hint).s;
         let n = obs.poses_x.len();
         for j in (0..n).filter(|&j| j != me) {
             let (x, y, th) = (obs.poses_x[j], obs.poses_y[j], obs.poses_theta[j]);
@@ -394,6 +405,7 @@ impl Lattice {
                 s: f.s,
                 d: f.d,
                 e,
+                behind: self.path.ds(own_s, f.s) < -BEHIND,
                 vs: v * libm::cos(e),
                 x,
                 y,
@@ -534,7 +546,7 @@ impl Lattice {
                 }
             }
             let t = smp.sigma / v_time;
-            for o in &self.others {
+            for o in self.others.iter().filter(|o| !o.behind) {
                 let travel = o.vs * t;
                 let (x, y, psi) = self.path.to_world(o.s + travel, o.d);
                 let dist = libm::hypot(x - smp.x, y - smp.y);
@@ -574,9 +586,13 @@ impl Lattice {
             smp.v = reference.min(curve);
         }
         if let Some(conflict) = conflict {
+            // a curve too tight for the steering is still driven, slowly (the tracker
+            // turns at full lock); stopping there would leave the car stuck for good
             let (stop_at, v_at) = match conflict {
                 Conflict::Car { sigma, speed } => (sigma - 0.3, speed),
-                Conflict::Static { sigma } | Conflict::Curvature { sigma } => (sigma - 0.5, 0.0),
+                Conflict::Curvature { sigma } => (sigma - 0.5, CREEP),
+                Conflict::Static { sigma } if sigma < 0.6 => (0.0, CREEP),
+                Conflict::Static { sigma } => (sigma - 0.5, 0.0),
             };
             for smp in c.iter_mut().filter(|s| s.sigma >= stop_at) {
                 smp.v = smp.v.min(v_at);

@@ -13,6 +13,7 @@ pub mod lattice;
 pub mod mlp;
 pub mod pure_pursuit;
 pub mod refpath;
+pub mod rrt_star;
 
 use std::sync::Arc;
 
@@ -25,6 +26,7 @@ pub use follow_gap::{FollowTheGap, FollowTheGapParams};
 pub use lattice::{Lattice, LatticeParams};
 pub use mlp::{Mlp, MlpConfig, MlpDriver};
 pub use pure_pursuit::{PurePursuit, PurePursuitParams};
+pub use rrt_star::{RrtStar, RrtStarParams};
 
 /// Errors building a driver; each names the driver, the parameter and the value.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -165,6 +167,12 @@ pub fn drivers() -> Vec<DriverInfo> {
             sensors: Sensors { lidar: true },
             params: lattice::param_specs(),
         },
+        DriverInfo {
+            name: rrt_star::NAME,
+            about: rrt_star::ABOUT,
+            sensors: Sensors { lidar: true },
+            params: rrt_star::param_specs(),
+        },
     ]
 }
 
@@ -209,6 +217,10 @@ pub fn build_driver(
         lattice::NAME => Ok(Box::new(Lattice::new(
             circuit,
             LatticeParams::from_vector(params, vehicle)?,
+        ))),
+        rrt_star::NAME => Ok(Box::new(RrtStar::new(
+            circuit,
+            RrtStarParams::from_vector(params, vehicle)?,
         ))),
         _ => unreachable!("every registered driver is built above"),
     }

@@ -7,9 +7,11 @@
 //!    [0, 1];
 //! 2. speed: longitudinal speed / the car's `v_max`;
 //! 3. steering: current steering angle / the car's steering limit;
-//! 4. if `track_features`: the lateral offset from the raceline (centerline when the
-//!    track has none), metres, positive to the left, clamped to [-3, 3];
-//! 5. if `track_features`: the heading error, car heading minus raceline heading, rad,
+//! 4. if `track_features`: the lateral offset from the circuit's driving line (its
+//!    raceline, or a line inside the map's free space), with its hairpins rounded
+//!    ([`crate::refpath::ROUNDING_PASSES`]), metres, positive to the left, clamped to
+//!    [-3, 3];
+//! 5. if `track_features`: the heading error, car heading minus that line's heading, rad,
 //!    wrapped to [-pi, pi).
 //!
 //! ## Network
@@ -45,7 +47,7 @@ use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
-use crate::refpath::RefPath;
+use crate::refpath::{ROUNDING_PASSES, RefPath};
 use crate::{Driver, ParamSpec, PolicyError, Sensors};
 
 pub const NAME: &str = "mlp";
@@ -401,7 +403,7 @@ impl MlpDriver {
         let path = mlp
             .config
             .track_features
-            .then(|| Arc::new(RefPath::from_circuit(circuit)));
+            .then(|| Arc::new(RefPath::from_circuit(circuit).smoothed(ROUNDING_PASSES)));
         Self {
             steer_max: vehicle.s_max.min(-vehicle.s_min),
             v_top: mlp.config.speed_max.min(vehicle.v_max),

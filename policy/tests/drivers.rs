@@ -1,6 +1,7 @@
 //! Driver tests on the shipped maps: laps from seeded random starts, determinism,
-//! parameter validation, the MLP's vector and file formats, and the lattice planner
-//! with obstacles and a slower car ahead. Release mode: `cargo test -p paddock-policy
+//! parameter validation, the MLP's vector and file formats, and the two planners
+//! (lattice, RRT*) with obstacles and a slower car ahead. Every driver on every real
+//! track: rollout/tests/real_tracks.rs. Release mode: `cargo test -p paddock-policy
 //! --release`.
 
 mod common;
@@ -31,23 +32,17 @@ fn follow_the_gap_laps_every_shipped_map() {
 }
 
 #[test]
-fn lattice_laps_lakeside_and_quarry() {
-    for map in ["lakeside", "quarry"] {
-        assert_laps(map, "lattice", &[1, 2]);
+fn planners_lap_every_shipped_map() {
+    for name in ["lattice", "rrt-star"] {
+        for map in MAPS {
+            assert_laps(map, name, &[0, 1, 2]);
+        }
     }
-}
-
-/// Known failure: on harbour the lattice car drifts off its plan right after the start
-/// and hits the wall (see the issue note).
-#[test]
-#[ignore = "lattice does not yet lap harbour"]
-fn lattice_laps_harbour() {
-    assert_laps("harbour", "lattice", &[0, 1, 2]);
 }
 
 #[test]
 fn same_seed_same_lap_time_bits() {
-    for name in ["follow-the-gap", "lattice"] {
+    for name in ["follow-the-gap", "lattice", "rrt-star"] {
         let a = solo("lakeside", name, &[], 1, 1);
         let b = solo("lakeside", name, &[], 1, 1);
         assert!(a.finished(0), "{name}: {a:?}");
@@ -65,7 +60,7 @@ fn same_seed_same_lap_time_bits() {
 fn parameter_errors_name_the_parameter() {
     let c = circuit("lakeside");
     let v = VehicleParams::default();
-    for name in ["follow-the-gap", "lattice"] {
+    for name in ["follow-the-gap", "lattice", "rrt-star"] {
         let info = driver_info(name).expect("registered");
         let mut p: Vec<f64> = info.params.iter().map(|s| s.default).collect();
         p[0] = 1e9;
@@ -181,29 +176,62 @@ fn mlp_default_init_drives_slowly() {
     assert!(out.finished(0), "{out:?}");
 }
 
+/// The lattice planner steers round static boxes it sees only on the LIDAR. (RRT*
+/// checks its edges against them too, but from close behind a box its forward-only tree
+/// finds no way out yet and it waits there: see the issue note.)
 #[test]
 fn lattice_avoids_static_obstacles() {
     let c = circuit("lakeside");
-    let mut ok = 0;
-    for seed in 0..3 {
-        let d = common::driver("lattice", &c, &[]);
-        let out = run(&c, vec![d], seed, &Starts::Random, 1, 3, 60.0);
-        ok += out.finished(0) as u32;
+    for name in ["lattice"] {
+        let mut ok = 0;
+        for seed in 0..3 {
+            let d = common::driver(name, &c, &[]);
+            let out = run(&c, vec![d], seed, &Starts::Random, 1, 3, 60.0);
+            ok += out.finished(0) as u32;
+        }
+        assert!(ok >= 2, "{name}: {ok}/3 laps with 3 obstacles");
     }
-    assert!(ok >= 2, "{ok}/3 laps with 3 obstacles");
 }
 
 /// The head-to-head: a pure-pursuit car at 0.6 of its speed profile starts 3 m ahead;
-/// the lattice car must finish 2 laps without a collision. Prints the rate.
+/// the planner's car must finish 2 laps without a collision (so it passes the slower
+/// car) and before it in most of 10 seeds (the rates measured when this test was
+/// written: lattice 6/10, RRT* 9/10; the floors sit a little below).
 #[test]
-#[ignore = "the lattice car finishes only a minority of seeds yet"]
-fn lattice_passes_a_slower_car() {
+fn planners_pass_a_slower_car() {
     let seeds = 10;
-    let mut ok = 0;
-    for seed in 0..seeds {
-        let out = head_to_head("lakeside", "lattice", seed, 3.0, 0.6, 2);
-        ok += out.finished(0) as u32;
+    let mut rates = Vec::new();
+    for (name, floor) in [("lattice", 6), ("rrt-star", 8)] {
+        let mut ok = 0;
+        for seed in 0..seeds {
+            let out = head_to_head("lakeside", name, seed, 3.0, 0.6, 2);
+            // it starts behind, so finishing first means it passed
+            let total = |i: usize| out.lap_times[i].iter().sum::<f64>();
+            let passed = out.finished(0) && (!out.finished(1) || total(0) < total(1));
+            ok += passed as u32;
+        }
+        println!("{name} passed and finished 2 laps in {ok}/{seeds} seeds");
+        rates.push((name, ok, floor));
     }
-    println!("lattice finished 2 laps in {ok}/{seeds} seeds");
-    assert!(2 * ok > seeds as u32, "{ok}/{seeds}");
+    for (name, ok, floor) in rates {
+        assert!(ok >= floor, "{name}: {ok}/{seeds}");
+    }
+}
+
+#[test]
+fn rrt_star_parameter_relation_is_checked() {
+    let c = circuit("lakeside");
+    let info = driver_info("rrt-star").unwrap();
+    let mut p: Vec<f64> = info.params.iter().map(|s| s.default).collect();
+    let at = |n: &str| info.params.iter().position(|s| s.name == n).unwrap();
+    p[at("horizon_min")] = 2.0;
+    p[at("step_size")] = 3.0;
+    let err = build_driver("rrt-star", &p, &c, &VehicleParams::default())
+        .err()
+        .expect("invalid");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("step_size") && msg.contains("horizon_min"),
+        "{msg}"
+    );
 }

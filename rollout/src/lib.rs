@@ -12,9 +12,11 @@
 //! care where episodes run.
 
 pub mod benchmark;
+pub mod env;
 mod episode;
 mod executor;
 mod scenario;
+pub mod tune_job;
 
 pub use episode::{AgentResult, AgentTrace, EpisodeResult, Termination, Trajectory, run_episode};
 pub use executor::{EpisodeTask, Executor, LocalExecutor};

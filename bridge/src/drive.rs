@@ -1,0 +1,736 @@
+//! A Paddock driver on the car: `/scan` + `/odom` in, `/drive` out.
+//!
+//! [`DriveCore`] is the sans-IO heart: it turns the newest scan and odometry into the
+//! one-car [`Observation`] a driver reads, asks the driver for an action and passes it
+//! through the [`Safety`] layer. [`run_drive`] is the ROS loop around it.
+//!
+//! - The car's pose comes from `/odom` (position and yaw of the pose, body velocity and
+//!   yaw rate of the twist). Map-based drivers (pure pursuit, lattice, MLP) need that pose
+//!   in the map frame: on the car, feed `/odom` from a localiser (particle filter, SLAM
+//!   in localisation mode) or remap the localiser's odometry onto the odom topic; the SIL
+//!   car publishes map-frame odometry.
+//! - The steering angle a driver may read is the last steering command sent (the car does
+//!   not measure it).
+//! - Scans are resampled to the beam layout the driver was built for (the simulator's
+//!   [`LidarConfig`]: 1080 beams over 4.7 rad by default) by nearest angle; invalid
+//!   returns (NaN, outside `[range_min, range_max]`) read as the driver's max range.
+//! - A LIDAR driver acts on every new scan, a pose driver on every new odometry message,
+//!   so the loop follows the sensors' clock (and a faster-than-real-time SIL car). A
+//!   command is also sent at least every `1 / rate_hz` seconds, so the stale-sensor stop
+//!   reaches the car even when the sensors fall silent.
+//! - Latency is the time from the triggering message's arrival to the command's publish.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use paddock_policy::{Driver, ParamSpec, build_driver, driver_info};
+use paddock_sim::lidar::LidarConfig;
+use paddock_sim::params::VehicleParams;
+use paddock_sim::track::Circuit;
+use paddock_sim::world::{Action, Observation};
+
+use crate::BridgeError;
+use crate::msg::{AckermannDrive, AckermannDriveStamped, Header, LaserScan, Odometry, Time};
+use crate::ros::{RosConfig, RosNode, publish, take_newest};
+use crate::safety::{Safety, SafetyConfig, SafetyCounters, StopReason, Verdict};
+
+/// Which driver with which parameters: a `paddock tune` result or a registry name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriverSpec {
+    pub name: String,
+    /// In the driver's parameter order.
+    pub params: Vec<f64>,
+    /// The map a tune result was tuned on.
+    pub map: Option<String>,
+}
+
+impl DriverSpec {
+    /// `policy` is a `paddock tune` result.json (its `policy`, `params.tuned` and `map`
+    /// fields) when it names an existing file, otherwise a driver name with its defaults;
+    /// `overrides` (`name=value`) apply on top either way.
+    pub fn resolve(policy: &str, overrides: &[(String, f64)]) -> Result<Self, BridgeError> {
+        let path = Path::new(policy);
+        if path.is_file() {
+            return Self::from_tune_result(path, overrides);
+        }
+        if policy.ends_with(".json") {
+            return Err(BridgeError::config(
+                "--policy",
+                policy,
+                "no such file (give a paddock tune result.json or a driver name)",
+            ));
+        }
+        let info = driver_info(policy)?;
+        let params = paddock_policy::params_from_overrides(info.name, &info.params, overrides)?;
+        Ok(Self {
+            name: info.name.to_string(),
+            params,
+            map: None,
+        })
+    }
+
+    fn from_tune_result(path: &Path, overrides: &[(String, f64)]) -> Result<Self, BridgeError> {
+        let shown = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|error| BridgeError::Io {
+            path: shown.clone(),
+            error,
+        })?;
+        let bad = |message: String| BridgeError::Format {
+            path: shown.clone(),
+            message,
+        };
+        let v: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
+        let name = v["policy"].as_str().ok_or_else(|| {
+            bad("no string field \"policy\" (a paddock tune result.json?)".into())
+        })?;
+        let info = driver_info(name)?;
+        let tuned = v["params"]["tuned"]
+            .as_object()
+            .ok_or_else(|| bad("no object field \"params.tuned\"".into()))?;
+        let mut named: Vec<(String, f64)> = Vec::with_capacity(tuned.len() + overrides.len());
+        for (k, x) in tuned {
+            let x = x
+                .as_f64()
+                .ok_or_else(|| bad(format!("params.tuned.{k} = {x} is not a number")))?;
+            named.push((k.clone(), x));
+        }
+        for spec in &info.params {
+            if !tuned.contains_key(spec.name) {
+                return Err(bad(format!(
+                    "params.tuned lacks parameter {:?} of driver {}",
+                    spec.name, info.name
+                )));
+            }
+        }
+        named.extend_from_slice(overrides);
+        let params = paddock_policy::params_from_overrides(info.name, &info.params, &named)?;
+        Ok(Self {
+            name: info.name.to_string(),
+            params,
+            map: v["map"].as_str().map(str::to_string),
+        })
+    }
+
+    pub fn param_specs(&self) -> Result<Vec<ParamSpec>, BridgeError> {
+        Ok(driver_info(&self.name)?.params)
+    }
+
+    pub fn build(
+        &self,
+        circuit: &Arc<Circuit>,
+        vehicle: &VehicleParams,
+    ) -> Result<Box<dyn Driver>, BridgeError> {
+        Ok(build_driver(&self.name, &self.params, circuit, vehicle)?)
+    }
+}
+
+/// Maps a LaserScan's beams onto the driver's beam layout by nearest angle.
+#[derive(Debug, Clone, PartialEq)]
+struct ScanAdapter {
+    /// Geometry of the incoming scans this was built for.
+    key: (usize, u32, u32),
+    /// Source beam of each target beam.
+    index: Vec<usize>,
+}
+
+impl ScanAdapter {
+    fn new(scan: &LaserScan, target: &LidarConfig) -> Result<Self, String> {
+        let n = scan.ranges.len();
+        let (amin, inc) = (scan.angle_min as f64, scan.angle_increment as f64);
+        if n == 0 {
+            return Err("scan has no ranges".into());
+        }
+        if !(amin.is_finite() && inc.is_finite()) || (n > 1 && inc == 0.0) {
+            return Err(format!(
+                "scan geometry angle_min = {amin}, angle_increment = {inc} is unusable"
+            ));
+        }
+        let m = target.num_beams;
+        let step = if m > 1 {
+            target.fov / (m - 1) as f64
+        } else {
+            0.0
+        };
+        let index = (0..m)
+            .map(|j| {
+                let a = -0.5 * target.fov + j as f64 * step;
+                let i = if n > 1 {
+                    ((a - amin) / inc).round()
+                } else {
+                    0.0
+                };
+                i.clamp(0.0, (n - 1) as f64) as usize
+            })
+            .collect();
+        Ok(Self {
+            key: Self::key(scan),
+            index,
+        })
+    }
+
+    fn key(scan: &LaserScan) -> (usize, u32, u32) {
+        (
+            scan.ranges.len(),
+            scan.angle_min.to_bits(),
+            scan.angle_increment.to_bits(),
+        )
+    }
+
+    fn apply(&self, scan: &LaserScan, max_range: f64, out: &mut [f64]) {
+        let (lo, hi) = (scan.range_min as f64, scan.range_max as f64);
+        for (o, &i) in out.iter_mut().zip(&self.index) {
+            let r = scan.ranges[i] as f64;
+            *o = if r.is_finite() && r >= lo && r <= hi {
+                r.min(max_range)
+            } else {
+                max_range
+            };
+        }
+    }
+}
+
+/// The driver, its view of the car, and the safety layer; no I/O.
+pub struct DriveCore {
+    driver: Box<dyn Driver>,
+    lidar_driver: bool,
+    lidar: LidarConfig,
+    safety: Safety,
+    adapter: Option<ScanAdapter>,
+    obs: Observation,
+    scan_at: Option<f64>,
+    odom_at: Option<f64>,
+    speed: f64,
+    last: Option<StopReason>,
+}
+
+impl DriveCore {
+    /// `lidar` is the scan layout the driver expects (the one it was tuned with).
+    pub fn new(
+        mut driver: Box<dyn Driver>,
+        lidar: LidarConfig,
+        safety: SafetyConfig,
+    ) -> Result<Self, BridgeError> {
+        if lidar.num_beams == 0 || !(lidar.fov > 0.0 && lidar.max_range > 0.0) {
+            return Err(BridgeError::config(
+                "lidar",
+                format!("{lidar:?}"),
+                "needs num_beams >= 1, fov > 0 and max_range > 0",
+            ));
+        }
+        driver.reset();
+        let lidar_driver = driver.sensors().lidar;
+        let obs = Observation {
+            num_beams: lidar.num_beams,
+            scans: vec![lidar.max_range; lidar.num_beams],
+            poses_x: vec![0.0],
+            poses_y: vec![0.0],
+            poses_theta: vec![0.0],
+            linear_vels_x: vec![0.0],
+            linear_vels_y: vec![0.0],
+            ang_vels_z: vec![0.0],
+            collisions: vec![false],
+            lap_times: vec![0.0],
+            lap_counts: vec![0],
+            steering_angles: vec![0.0],
+            progress: vec![0.0],
+            slip_angles: vec![0.0],
+        };
+        Ok(Self {
+            driver,
+            lidar_driver,
+            lidar,
+            safety: Safety::new(safety)?,
+            adapter: None,
+            obs,
+            scan_at: None,
+            odom_at: None,
+            speed: 0.0,
+            last: None,
+        })
+    }
+
+    /// Does the driver read the scan (and so act on every new scan)?
+    pub fn lidar_driver(&self) -> bool {
+        self.lidar_driver
+    }
+
+    pub fn driver_name(&self) -> &'static str {
+        self.driver.name()
+    }
+
+    pub fn safety(&self) -> &Safety {
+        &self.safety
+    }
+
+    /// Take a scan that arrived at `now`. A scan with unusable geometry is dropped (and
+    /// logged); the previous one then ages towards the stale-sensor stop.
+    pub fn on_scan(&mut self, scan: &LaserScan, now: f64) -> bool {
+        if self
+            .adapter
+            .as_ref()
+            .is_none_or(|a| a.key != ScanAdapter::key(scan))
+        {
+            match ScanAdapter::new(scan, &self.lidar) {
+                Ok(a) => self.adapter = Some(a),
+                Err(e) => {
+                    tracing::warn!(error = %e, "dropping scan");
+                    return false;
+                }
+            }
+        }
+        if let Some(a) = &self.adapter {
+            a.apply(scan, self.lidar.max_range, &mut self.obs.scans);
+        }
+        self.safety.on_scan(scan, self.speed, now);
+        self.scan_at = Some(now);
+        true
+    }
+
+    /// Take odometry that arrived at `now`; a message with non-finite numbers is dropped.
+    pub fn on_odom(&mut self, odom: &Odometry, now: f64) -> bool {
+        let p = &odom.pose.pose;
+        let t = &odom.twist.twist;
+        let yaw = p.orientation.yaw();
+        let values = [
+            p.position.x,
+            p.position.y,
+            yaw,
+            t.linear.x,
+            t.linear.y,
+            t.angular.z,
+        ];
+        if !values.iter().all(|v| v.is_finite()) {
+            tracing::warn!(?values, "dropping odometry with non-finite values");
+            return false;
+        }
+        let o = &mut self.obs;
+        o.poses_x[0] = p.position.x;
+        o.poses_y[0] = p.position.y;
+        o.poses_theta[0] = yaw;
+        o.linear_vels_x[0] = t.linear.x;
+        o.linear_vels_y[0] = t.linear.y;
+        o.ang_vels_z[0] = t.angular.z;
+        o.slip_angles[0] = if t.linear.x.abs() > 0.1 {
+            libm::atan2(t.linear.y, t.linear.x)
+        } else {
+            0.0
+        };
+        self.speed = t.linear.x;
+        self.odom_at = Some(now);
+        true
+    }
+
+    /// The command to send at `now`.
+    pub fn command(&mut self, now: f64) -> Verdict {
+        let age = |t: Option<f64>| t.map(|t| (now - t).max(0.0));
+        let ready = self.odom_at.is_some() && (!self.lidar_driver || self.scan_at.is_some());
+        let requested = if ready {
+            self.driver.act(&self.obs, 0)
+        } else {
+            Action::default()
+        };
+        let needs_scan = self.lidar_driver || self.safety.needs_scan();
+        let verdict =
+            self.safety
+                .filter(requested, age(self.scan_at), age(self.odom_at), needs_scan);
+        self.obs.steering_angles[0] = verdict.action.steer;
+        match (&self.last, &verdict.stop) {
+            (None, Some(r)) => tracing::warn!(reason = %r, "stopping the car"),
+            (Some(_), None) => tracing::info!("driving"),
+            _ => {}
+        }
+        self.last = verdict.stop;
+        verdict
+    }
+}
+
+/// Settings of the drive loop.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriveOptions {
+    /// Least rate at which commands go out, Hz.
+    pub rate_hz: f64,
+    /// Stop after this many seconds (None: until stopped).
+    pub seconds: Option<f64>,
+    pub lidar: LidarConfig,
+    pub safety: SafetyConfig,
+}
+
+impl Default for DriveOptions {
+    fn default() -> Self {
+        Self {
+            rate_hz: 40.0,
+            seconds: None,
+            lidar: LidarConfig::default(),
+            safety: SafetyConfig::default(),
+        }
+    }
+}
+
+/// Scan-to-command (or odometry-to-command) latency figures, milliseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct LatencySummary {
+    pub count: usize,
+    pub mean_ms: f64,
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+}
+
+impl LatencySummary {
+    pub fn from_samples(samples_s: &[f64]) -> Self {
+        if samples_s.is_empty() {
+            return Self::default();
+        }
+        let mut v: Vec<f64> = samples_s.iter().map(|s| s * 1e3).collect();
+        v.sort_by(f64::total_cmp);
+        let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+        Self {
+            count: v.len(),
+            mean_ms: v.iter().sum::<f64>() / v.len() as f64,
+            p50_ms: q(0.5),
+            p99_ms: q(0.99),
+            max_ms: v[v.len() - 1],
+        }
+    }
+}
+
+/// What a drive run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriveSummary {
+    pub driver: String,
+    /// "scan" or "odom": the message whose arrival triggers a command.
+    pub trigger: &'static str,
+    pub commands: u64,
+    pub scans: u64,
+    pub odoms: u64,
+    pub duration_s: f64,
+    /// From the triggering message's arrival (taken off the DDS queue) to the publish.
+    pub latency: LatencySummary,
+    /// From the triggering message's DDS source timestamp (its publisher's wall clock:
+    /// meaningful when sensor driver and bridge share a host clock) to the publish.
+    pub end_to_end: LatencySummary,
+    pub safety: SafetyCounters,
+}
+
+fn epoch_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as i64)
+        .unwrap_or(0)
+}
+
+fn wall_clock_stamp() -> Time {
+    Time::from_secs(epoch_ns() as f64 * 1e-9)
+}
+
+/// Run `core` as a ROS 2 node until `stop` is set (Ctrl-C) or `options.seconds` pass,
+/// then send zero speed.
+pub fn run_drive(
+    mut core: DriveCore,
+    ros: &RosConfig,
+    options: &DriveOptions,
+    stop: &AtomicBool,
+) -> Result<DriveSummary, BridgeError> {
+    if !(options.rate_hz.is_finite() && options.rate_hz >= 1.0 && options.rate_hz <= 1000.0) {
+        return Err(BridgeError::config(
+            "rate_hz",
+            options.rate_hz,
+            "must be in [1, 1000] Hz",
+        ));
+    }
+    let mut node = RosNode::new("paddock_drive", ros)?;
+    let topics = ros.topics.clone();
+    let scan_sub = node.subscription::<LaserScan>(&topics.scan)?;
+    let odom_sub = node.subscription::<Odometry>(&topics.odom)?;
+    let drive_pub = node.publisher::<AckermannDriveStamped>(&topics.drive)?;
+    let frame = ros.frames.base.clone();
+    tracing::info!(
+        driver = core.driver_name(),
+        scan = %topics.scan, odom = %topics.odom, drive = %topics.drive,
+        domain = ros.domain_id, "drive node up"
+    );
+    let t0 = Instant::now();
+    let now = || t0.elapsed().as_secs_f64();
+    let period = 1.0 / options.rate_hz;
+    let mut next_tick = 0.0;
+    let mut latencies = Vec::new();
+    let mut end_to_end = Vec::new();
+    // the newest sensor stamp and when it arrived: commands are stamped on the
+    // sensors' clock (sim time on the SIL car) plus the time spent since
+    let mut sensor_clock: Option<(Time, f64)> = None;
+    let (mut commands, mut scans, mut odoms) = (0u64, 0u64, 0u64);
+    let stamp_at = |clock: &Option<(Time, f64)>, t: f64| match clock {
+        Some((stamp, at)) if !stamp.is_zero() => Time::from_secs(stamp.as_secs() + (t - at)),
+        _ => wall_clock_stamp(),
+    };
+    let send = |v: &Verdict, stamp: Time| {
+        publish(
+            &drive_pub,
+            &topics.drive,
+            AckermannDriveStamped {
+                header: Header::new(stamp, &frame),
+                drive: AckermannDrive {
+                    steering_angle: v.action.steer as f32,
+                    speed: v.action.speed as f32,
+                    ..AckermannDrive::default()
+                },
+            },
+        )
+    };
+    loop {
+        if stop.load(Ordering::Relaxed) || options.seconds.is_some_and(|s| now() >= s) {
+            break;
+        }
+        // (arrival time, source timestamp) of the message that triggers a command
+        let mut trigger: Option<(f64, Option<i64>)> = None;
+        if let Some((odom, source)) = take_newest(&odom_sub, &topics.odom) {
+            let t = now();
+            odoms += 1;
+            if core.on_odom(&odom, t) {
+                sensor_clock = Some((odom.header.stamp, t));
+                if !core.lidar_driver() {
+                    trigger = Some((t, source));
+                }
+            }
+        }
+        if let Some((scan, source)) = take_newest(&scan_sub, &topics.scan) {
+            let t = now();
+            scans += 1;
+            if core.on_scan(&scan, t) {
+                sensor_clock = Some((scan.header.stamp, t));
+                if core.lidar_driver() {
+                    trigger = Some((t, source));
+                }
+            }
+        }
+        let t = now();
+        if trigger.is_some() || t >= next_tick {
+            let verdict = core.command(t);
+            send(&verdict, stamp_at(&sensor_clock, t));
+            commands += 1;
+            if let Some((arrived, source)) = trigger {
+                let l = now() - arrived;
+                latencies.push(l);
+                let e2e = source.map(|s| (epoch_ns() - s) as f64 * 1e-9);
+                // another host's clock can be off: keep only plausible values
+                if let Some(e) = e2e.filter(|e| (0.0..10.0).contains(e)) {
+                    end_to_end.push(e);
+                }
+                tracing::trace!(
+                    latency_ms = l * 1e3,
+                    end_to_end_ms = e2e.map(|e| e * 1e3),
+                    "command sent"
+                );
+            }
+            next_tick = t + period;
+        }
+        std::thread::sleep(Duration::from_micros(250));
+    }
+    // Clean stop: zero speed, repeated so that a lossy link still delivers it.
+    let halt = Verdict {
+        action: Action::new(0.0, 0.0),
+        stop: None,
+        clamped: false,
+    };
+    for _ in 0..5 {
+        send(&halt, stamp_at(&sensor_clock, now()));
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let latency = LatencySummary::from_samples(&latencies);
+    let e2e = LatencySummary::from_samples(&end_to_end);
+    let summary = DriveSummary {
+        driver: core.driver_name().to_string(),
+        trigger: if core.lidar_driver() { "scan" } else { "odom" },
+        commands,
+        scans,
+        odoms,
+        duration_s: now(),
+        latency,
+        end_to_end: e2e,
+        safety: *core.safety().counters(),
+    };
+    tracing::info!(
+        commands,
+        latency_mean_ms = latency.mean_ms,
+        latency_p99_ms = latency.p99_ms,
+        latency_max_ms = latency.max_ms,
+        end_to_end_mean_ms = e2e.mean_ms,
+        end_to_end_p99_ms = e2e.p99_ms,
+        "drive node stopped; zero speed sent"
+    );
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msg::{Pose, PoseWithCovariance, Quaternion, Twist, TwistWithCovariance, Vector3};
+
+    fn scan(n: usize, fov: f32, r: f32) -> LaserScan {
+        LaserScan {
+            angle_min: -fov / 2.0,
+            angle_max: fov / 2.0,
+            angle_increment: fov / (n - 1) as f32,
+            range_min: 0.02,
+            range_max: 30.0,
+            ranges: vec![r; n],
+            ..LaserScan::default()
+        }
+    }
+
+    fn odom(x: f64, yaw: f64, v: f64) -> Odometry {
+        Odometry {
+            pose: PoseWithCovariance {
+                pose: Pose {
+                    position: crate::msg::Point { x, y: 0.0, z: 0.0 },
+                    orientation: Quaternion::from_yaw(yaw),
+                },
+                ..Default::default()
+            },
+            twist: TwistWithCovariance {
+                twist: Twist {
+                    linear: Vector3 {
+                        x: v,
+                        ..Default::default()
+                    },
+                    ..Default::default()
+                },
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+    }
+
+    fn gap_core(safety: SafetyConfig) -> DriveCore {
+        let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+        let spec = DriverSpec::resolve("follow-the-gap", &[]).unwrap();
+        let d = spec.build(&circuit, &VehicleParams::default()).unwrap();
+        DriveCore::new(d, LidarConfig::default(), safety).unwrap()
+    }
+
+    #[test]
+    fn adapter_resamples_a_1081_beam_scan_by_angle() {
+        let mut s = scan(1081, 4.712_389, 5.0);
+        s.ranges[540] = 1.5; // straight ahead
+        s.ranges[0] = f32::NAN;
+        s.ranges[1] = f32::INFINITY;
+        let target = LidarConfig::default();
+        let a = ScanAdapter::new(&s, &target).unwrap();
+        let mut out = vec![0.0; target.num_beams];
+        a.apply(&s, target.max_range, &mut out);
+        // target beams 539/540 straddle 0 rad; one of them reads the 1.5 m return
+        assert!(
+            out[539] == 1.5 || out[540] == 1.5,
+            "{} {}",
+            out[539],
+            out[540]
+        );
+        assert_eq!(out[0], target.max_range);
+        assert!(
+            out[1..530]
+                .iter()
+                .all(|&r| r == 5.0 || r == target.max_range)
+        );
+        let mut one = scan(2, 1.0, 1.0);
+        one.ranges.pop();
+        one.angle_increment = 0.0;
+        assert!(ScanAdapter::new(&one, &target).is_ok());
+        let mut bad = scan(10, 1.0, 1.0);
+        bad.angle_increment = f32::NAN;
+        assert!(ScanAdapter::new(&bad, &target).is_err());
+    }
+
+    #[test]
+    fn core_waits_for_sensors_then_drives_then_stops_when_stale() {
+        let mut c = gap_core(SafetyConfig {
+            max_speed: 3.0,
+            ..SafetyConfig::default()
+        });
+        assert!(c.lidar_driver());
+        let v = c.command(0.0);
+        assert!(matches!(v.stop, Some(StopReason::StaleOdom { age: None })));
+        assert!(c.on_odom(&odom(0.0, 0.0, 1.0), 0.0));
+        assert!(c.on_scan(&scan(1080, 4.7, 8.0), 0.01));
+        let v = c.command(0.02);
+        assert_eq!(v.stop, None);
+        assert!(v.action.speed > 0.0 && v.action.speed <= 3.0, "{v:?}");
+        // nothing new for 0.3 s: stale, zero speed
+        let v = c.command(0.32);
+        assert!(
+            matches!(v.stop, Some(StopReason::StaleOdom { .. })),
+            "{v:?}"
+        );
+        assert_eq!(v.action.speed, 0.0);
+        assert!(!c.on_odom(&odom(f64::NAN, 0.0, 1.0), 0.4));
+    }
+
+    #[test]
+    fn core_emergency_stops_on_a_close_wall_ahead() {
+        let mut c = gap_core(SafetyConfig::default());
+        c.on_odom(&odom(0.0, 0.0, 4.0), 0.0);
+        let mut s = scan(1080, 4.7, 8.0);
+        for r in &mut s.ranges[500..580] {
+            *r = 0.6; // 0.15 s at 4 m/s
+        }
+        c.on_scan(&s, 0.0);
+        let v = c.command(0.01);
+        assert!(
+            matches!(v.stop, Some(StopReason::Emergency { .. })),
+            "{v:?}"
+        );
+        assert_eq!(v.action.speed, 0.0);
+    }
+
+    #[test]
+    fn policy_from_a_tune_result_and_by_name() {
+        let dir = std::env::temp_dir().join(format!("paddock-bridge-spec-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let info = driver_info("pure-pursuit").unwrap();
+        let mut tuned = serde_json::Map::new();
+        for p in &info.params {
+            tuned.insert(p.name.into(), serde_json::json!(0.5 * (p.lo + p.hi)));
+        }
+        let path = dir.join("result.json");
+        let doc = serde_json::json!({"map": "quarry", "policy": "pure-pursuit",
+            "params": {"default": {}, "tuned": tuned}});
+        std::fs::write(&path, doc.to_string()).unwrap();
+        let s = DriverSpec::resolve(path.to_str().unwrap(), &[]).unwrap();
+        assert_eq!(s.name, "pure-pursuit");
+        assert_eq!(s.map.as_deref(), Some("quarry"));
+        assert_eq!(s.params[0], 0.5 * (info.params[0].lo + info.params[0].hi));
+        let first = info.params[0].name.to_string();
+        let s = DriverSpec::resolve(path.to_str().unwrap(), &[(first, info.params[0].lo)]).unwrap();
+        assert_eq!(s.params[0], info.params[0].lo);
+        // a missing parameter is named
+        tuned.remove(info.params[1].name);
+        let doc = serde_json::json!({"policy": "pure-pursuit", "params": {"tuned": tuned}});
+        std::fs::write(&path, doc.to_string()).unwrap();
+        let e = DriverSpec::resolve(path.to_str().unwrap(), &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(info.params[1].name), "{e}");
+        let e = DriverSpec::resolve("no-such-driver", &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no-such-driver"), "{e}");
+        let e = DriverSpec::resolve("missing.json", &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--policy") && e.contains("missing.json"), "{e}");
+        let d = DriverSpec::resolve("pure-pursuit", &[]).unwrap();
+        assert_eq!(d.params.len(), info.params.len());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn latency_summary_quantiles() {
+        let s = LatencySummary::from_samples(&[0.001, 0.002, 0.003, 0.010]);
+        assert_eq!(s.count, 4);
+        assert!((s.mean_ms - 4.0).abs() < 1e-9);
+        assert_eq!(s.max_ms, 10.0);
+        assert_eq!(LatencySummary::from_samples(&[]).count, 0);
+    }
+}

@@ -1,0 +1,65 @@
+//! # paddock-bridge: Paddock drivers on a ROS 2 car, a software-in-the-loop car, recordings
+//!
+//! The team's car runs ROS 2 (f1tenth_system: LIDAR on `/scan`, VESC odometry on `/odom`,
+//! drive commands on `/drive`). This crate speaks that stack with no ROS installation,
+//! through `ros2-client` (pure-Rust DDS), so one static `paddock` binary can:
+//!
+//! - [`drive`]: run any Paddock driver (built-in or a `paddock tune` result) as a ROS 2
+//!   node, behind a safety layer ([`safety`]: stale-sensor stop, clamps, time-to-collision
+//!   emergency stop, clean stop on exit) with scan-to-command latency measured;
+//! - [`sil`]: stand in for the car with the simulator (same topics and message types as
+//!   the car, like f1tenth_gym_ros), paced by the wall clock or a multiple of it;
+//! - [`record`]: record the car's topics to MCAP (ROS 2 bag format, `cdr` + `ros2msg`
+//!   schemas) and export a recording to the reality-gap CSV layout.
+//!
+//! ## Design
+//! The decisions are sans-IO: [`safety::Safety`] and [`drive::DriveCore`] take messages and
+//! times as arguments and return commands, so stale-sensor, clamp and emergency-stop
+//! behaviour is unit-tested with a virtual clock; the ROS loops around them only move
+//! messages. Messages ([`msg`]) are serde structs in ROS 2 IDL field order, so RustDDS's
+//! CDR encoding is byte-compatible with rclcpp/rclpy nodes, and the same bytes go into
+//! MCAP files.
+
+pub mod drive;
+pub mod msg;
+pub mod record;
+pub mod ros;
+pub mod safety;
+pub mod sil;
+
+use std::fmt::Display;
+
+/// Errors of the bridge; each names the field, topic, file or value involved.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    #[error("invalid {field} = {value}: {reason}")]
+    Config {
+        field: String,
+        value: String,
+        reason: String,
+    },
+    #[error("ROS 2: {what}: {message}")]
+    Ros { what: String, message: String },
+    /// (The cause is in the message, not chained, so it prints once.)
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
+    #[error("{path}: {message}")]
+    Format { path: String, message: String },
+    #[error(transparent)]
+    Policy(#[from] paddock_policy::PolicyError),
+    #[error(transparent)]
+    World(#[from] paddock_sim::world::WorldError),
+    #[error(transparent)]
+    Map(#[from] paddock_sim::track::TrackError),
+}
+
+impl BridgeError {
+    /// A configuration error naming `field`, its `value` and why it is wrong.
+    pub fn config(field: &str, value: impl Display, reason: &str) -> Self {
+        Self::Config {
+            field: field.to_string(),
+            value: value.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+}

@@ -1,0 +1,492 @@
+//! Recordings: the car's topics into MCAP, and MCAP out to the reality-gap CSV.
+//!
+//! [`record`] subscribes to `/scan`, `/odom` and `/drive` and writes every message as a
+//! ROS 2 bag in MCAP: profile `ros2`, message encoding `cdr` (the DDS payload bytes), one
+//! `ros2msg` schema per type with its nested definitions, so Foxglove, `ros2 bag` (with
+//! the MCAP storage plugin) and `paddock sysid --recording run.mcap` read it directly.
+//!
+//! A message's log time is its header stamp ([`LogClock::Header`], the default: the
+//! sensor's own clock, and the simulated timeline on a faster-than-real-time SIL car) or
+//! its arrival time ([`LogClock::Receive`]); a zero stamp falls back to arrival time.
+//!
+//! [`export_csv`] writes `t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate`: one row per
+//! odometry message from the first drive command on, `t` from 0 s, the newest command at
+//! or before the row held, yaw wrapped to [-pi, pi).
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use ros2_client::Subscription;
+
+use crate::BridgeError;
+use crate::msg::{AckermannDriveStamped, LaserScan, Odometry, RosMessage, Time, from_cdr, to_cdr};
+use crate::ros::{RosConfig, RosNode, TopicNames};
+
+/// Which time a recorded message is logged at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LogClock {
+    /// The message's header stamp (arrival time when the stamp is zero).
+    #[default]
+    Header,
+    /// When the recorder received it.
+    Receive,
+}
+
+impl std::str::FromStr for LogClock {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "header" => Ok(Self::Header),
+            "receive" => Ok(Self::Receive),
+            _ => Err(format!("unknown clock {s:?} (header, receive)")),
+        }
+    }
+}
+
+/// A message with a header stamp.
+pub trait Stamped {
+    fn stamp(&self) -> Time;
+}
+
+impl Stamped for LaserScan {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+impl Stamped for Odometry {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+impl Stamped for AckermannDriveStamped {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+
+/// An MCAP ROS 2 bag being written.
+pub struct McapBag<W: Write + std::io::Seek> {
+    writer: mcap::Writer<W>,
+    channels: BTreeMap<String, u16>,
+    schemas: BTreeMap<String, u16>,
+    sequence: u32,
+    path: String,
+}
+
+fn mcap_err(path: &str) -> impl Fn(mcap::McapError) -> BridgeError + '_ {
+    move |e| BridgeError::Format {
+        path: path.to_string(),
+        message: format!("MCAP: {e}"),
+    }
+}
+
+impl<W: Write + std::io::Seek> McapBag<W> {
+    /// Start a bag on `w`; `path` names it in errors.
+    pub fn new(w: W, path: &str) -> Result<Self, BridgeError> {
+        let writer = mcap::WriteOptions::new()
+            .compression(None)
+            .profile("ros2")
+            .library(concat!("paddock-bridge ", env!("CARGO_PKG_VERSION")))
+            .create(w)
+            .map_err(mcap_err(path))?;
+        Ok(Self {
+            writer,
+            channels: BTreeMap::new(),
+            schemas: BTreeMap::new(),
+            sequence: 0,
+            path: path.to_string(),
+        })
+    }
+
+    /// Register `topic` carrying `M`.
+    pub fn add_topic<M: RosMessage>(&mut self, topic: &str) -> Result<(), BridgeError> {
+        let name = M::schema_name();
+        let schema = match self.schemas.get(&name) {
+            Some(&id) => id,
+            None => {
+                let id = self
+                    .writer
+                    .add_schema(&name, "ros2msg", M::SCHEMA.as_bytes())
+                    .map_err(mcap_err(&self.path))?;
+                self.schemas.insert(name, id);
+                id
+            }
+        };
+        let id = self
+            .writer
+            .add_channel(schema, topic, "cdr", &BTreeMap::new())
+            .map_err(mcap_err(&self.path))?;
+        self.channels.insert(topic.to_string(), id);
+        Ok(())
+    }
+
+    /// Write `msg` on `topic` (registered with [`McapBag::add_topic`]).
+    pub fn write<M: RosMessage>(
+        &mut self,
+        topic: &str,
+        msg: &M,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+    ) -> Result<(), BridgeError> {
+        let Some(&channel_id) = self.channels.get(topic) else {
+            return Err(BridgeError::config(
+                "topic",
+                topic,
+                "not registered in this bag",
+            ));
+        };
+        let data = to_cdr(msg).map_err(|message| BridgeError::Format {
+            path: self.path.clone(),
+            message: format!("encoding a {topic} message: {message}"),
+        })?;
+        let header = mcap::records::MessageHeader {
+            channel_id,
+            sequence: self.sequence,
+            log_time: log_time_ns,
+            publish_time: publish_time_ns,
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        self.writer
+            .write_to_known_channel(&header, &data)
+            .map_err(mcap_err(&self.path))
+    }
+
+    /// Write the summary and hand back the sink.
+    pub fn finish(mut self) -> Result<W, BridgeError> {
+        self.writer.finish().map_err(mcap_err(&self.path))?;
+        Ok(self.writer.into_inner())
+    }
+}
+
+/// Settings of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordOptions {
+    /// Stop after this many wall-clock seconds (None: until stopped).
+    pub seconds: Option<f64>,
+    pub clock: LogClock,
+}
+
+impl Default for RecordOptions {
+    fn default() -> Self {
+        Self {
+            seconds: None,
+            clock: LogClock::Header,
+        }
+    }
+}
+
+/// Messages recorded per topic.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
+pub struct RecordSummary {
+    pub messages: BTreeMap<String, u64>,
+    pub duration_s: f64,
+}
+
+fn epoch_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
+fn drain<M: RosMessage + Stamped, W: Write + std::io::Seek>(
+    sub: &Subscription<M>,
+    topic: &str,
+    clock: LogClock,
+    bag: &mut McapBag<W>,
+    count: &mut u64,
+) -> Result<(), BridgeError> {
+    loop {
+        match sub.take() {
+            Ok(Some((m, _))) => {
+                let received = epoch_ns();
+                let stamp = m.stamp();
+                let stamp_ns = if stamp.is_zero() {
+                    received
+                } else {
+                    stamp.as_nanos()
+                };
+                let log = match clock {
+                    LogClock::Header => stamp_ns,
+                    LogClock::Receive => received,
+                };
+                bag.write(topic, &m, log, stamp_ns)?;
+                *count += 1;
+            }
+            Ok(None) => return Ok(()),
+            Err(e) => {
+                tracing::warn!(topic, error = ?e, "skipping an unreadable message");
+                return Ok(());
+            }
+        }
+    }
+}
+
+/// Record the car's `/scan`, `/odom` and `/drive` into the MCAP file `out` until `stop`
+/// is set or `options.seconds` pass.
+pub fn record(
+    ros: &RosConfig,
+    out: &Path,
+    options: &RecordOptions,
+    stop: &AtomicBool,
+) -> Result<RecordSummary, BridgeError> {
+    if let Some(s) = options.seconds
+        && !(s.is_finite() && s > 0.0)
+    {
+        return Err(BridgeError::config("seconds", s, "must be > 0"));
+    }
+    let shown = out.display().to_string();
+    let file = File::create(out).map_err(|error| BridgeError::Io {
+        path: shown.clone(),
+        error,
+    })?;
+    let mut bag = McapBag::new(BufWriter::new(file), &shown)?;
+    let t = &ros.topics;
+    bag.add_topic::<LaserScan>(&t.scan)?;
+    bag.add_topic::<Odometry>(&t.odom)?;
+    bag.add_topic::<AckermannDriveStamped>(&t.drive)?;
+    let mut node = RosNode::new("paddock_record", ros)?;
+    let scan = node.subscription::<LaserScan>(&t.scan)?;
+    let odom = node.subscription::<Odometry>(&t.odom)?;
+    let drive = node.subscription::<AckermannDriveStamped>(&t.drive)?;
+    tracing::info!(out = %shown, "recording");
+    let t0 = Instant::now();
+    let (mut n_scan, mut n_odom, mut n_drive) = (0u64, 0u64, 0u64);
+    loop {
+        let done = stop.load(Ordering::Relaxed)
+            || options
+                .seconds
+                .is_some_and(|s| t0.elapsed().as_secs_f64() >= s);
+        drain(&scan, &t.scan, options.clock, &mut bag, &mut n_scan)?;
+        drain(&odom, &t.odom, options.clock, &mut bag, &mut n_odom)?;
+        drain(&drive, &t.drive, options.clock, &mut bag, &mut n_drive)?;
+        if done {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let mut w = bag.finish()?;
+    w.flush().map_err(|error| BridgeError::Io {
+        path: shown.clone(),
+        error,
+    })?;
+    let messages = BTreeMap::from([
+        (t.scan.clone(), n_scan),
+        (t.odom.clone(), n_odom),
+        (t.drive.clone(), n_drive),
+    ]);
+    tracing::info!(?messages, "recording closed");
+    Ok(RecordSummary {
+        messages,
+        duration_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// One row of the reality-gap CSV.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GapRow {
+    pub t: f64,
+    pub steer_cmd: f64,
+    pub speed_cmd: f64,
+    pub x: f64,
+    pub y: f64,
+    pub yaw: f64,
+    pub vx: f64,
+    pub vy: f64,
+    pub yaw_rate: f64,
+}
+
+/// The CSV header of the reality-gap layout.
+pub const GAP_CSV_HEADER: &str = "t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate";
+
+/// Wrap an angle to [-pi, pi).
+pub fn wrap_pi(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = (a + PI).rem_euclid(TAU) - PI;
+    if w >= PI { w - TAU } else { w }
+}
+
+/// Read the drive and odometry topics of an MCAP file into reality-gap rows.
+pub fn read_gap_rows(path: &Path, topics: &TopicNames) -> Result<Vec<GapRow>, BridgeError> {
+    let shown = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|error| BridgeError::Io {
+        path: shown.clone(),
+        error,
+    })?;
+    let bad = |message: String| BridgeError::Format {
+        path: shown.clone(),
+        message,
+    };
+    let stream =
+        mcap::MessageStream::new(&bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))?;
+    let mut drive: Vec<(u64, f64, f64)> = Vec::new();
+    let mut odom: Vec<(u64, Odometry)> = Vec::new();
+    let mut seen: BTreeMap<String, u64> = BTreeMap::new();
+    for m in stream {
+        let m = m.map_err(|e| bad(format!("reading MCAP: {e}")))?;
+        let topic = &m.channel.topic;
+        *seen.entry(topic.clone()).or_default() += 1;
+        let encoding = &m.channel.message_encoding;
+        if (*topic == topics.drive || *topic == topics.odom) && encoding != "cdr" {
+            return Err(bad(format!(
+                "topic {topic} has message encoding {encoding:?}; only cdr (ROS 2) is read"
+            )));
+        }
+        if *topic == topics.drive {
+            let d: AckermannDriveStamped = from_cdr(&m.data)
+                .map_err(|e| bad(format!("{topic} message {}: {e}", drive.len())))?;
+            drive.push((
+                m.log_time,
+                d.drive.steering_angle as f64,
+                d.drive.speed as f64,
+            ));
+        } else if *topic == topics.odom {
+            let o: Odometry = from_cdr(&m.data)
+                .map_err(|e| bad(format!("{topic} message {}: {e}", odom.len())))?;
+            odom.push((m.log_time, o));
+        }
+    }
+    let known = seen.keys().cloned().collect::<Vec<_>>().join(", ");
+    if drive.is_empty() || odom.is_empty() {
+        return Err(bad(format!(
+            "needs messages on {} and {} (topics in the file: {known})",
+            topics.drive, topics.odom
+        )));
+    }
+    drive.sort_by_key(|d| d.0);
+    odom.sort_by_key(|o| o.0);
+    let first_cmd = drive[0].0;
+    let mut rows = Vec::with_capacity(odom.len());
+    let mut k = 0;
+    let mut t0 = None;
+    for (t, o) in &odom {
+        if *t < first_cmd {
+            continue;
+        }
+        while k + 1 < drive.len() && drive[k + 1].0 <= *t {
+            k += 1;
+        }
+        let t0 = *t0.get_or_insert(*t);
+        let p = &o.pose.pose;
+        let tw = &o.twist.twist;
+        rows.push(GapRow {
+            t: (*t - t0) as f64 * 1e-9,
+            steer_cmd: drive[k].1,
+            speed_cmd: drive[k].2,
+            x: p.position.x,
+            y: p.position.y,
+            yaw: wrap_pi(p.orientation.yaw()),
+            vx: tw.linear.x,
+            vy: tw.linear.y,
+            yaw_rate: tw.angular.z,
+        });
+    }
+    if rows.is_empty() {
+        return Err(bad(format!(
+            "no {} message at or after the first {} command",
+            topics.odom, topics.drive
+        )));
+    }
+    Ok(rows)
+}
+
+/// Export an MCAP recording to the reality-gap CSV `out`; returns the rows written.
+pub fn export_csv(mcap: &Path, out: &Path, topics: &TopicNames) -> Result<usize, BridgeError> {
+    let rows = read_gap_rows(mcap, topics)?;
+    let shown = out.display().to_string();
+    let io = |error| BridgeError::Io {
+        path: shown.clone(),
+        error,
+    };
+    let mut w = BufWriter::new(File::create(out).map_err(io)?);
+    writeln!(w, "{GAP_CSV_HEADER}").map_err(io)?;
+    for r in &rows {
+        writeln!(
+            w,
+            "{},{},{},{},{},{},{},{},{}",
+            r.t, r.steer_cmd, r.speed_cmd, r.x, r.y, r.yaw, r.vx, r.vy, r.yaw_rate
+        )
+        .map_err(io)?;
+    }
+    w.flush().map_err(io)?;
+    Ok(rows.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msg::{AckermannDrive, Header, Quaternion};
+
+    #[test]
+    fn wrap_pi_is_half_open() {
+        use std::f64::consts::PI;
+        assert_eq!(wrap_pi(PI), -PI);
+        assert!((wrap_pi(3.0 * PI / 2.0) + PI / 2.0).abs() < 1e-12);
+        assert_eq!(wrap_pi(0.5), 0.5);
+    }
+
+    #[test]
+    fn bag_round_trips_to_gap_rows() {
+        let dir = std::env::temp_dir().join(format!("paddock-bridge-bag-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("run.mcap");
+        let topics = TopicNames::default();
+        let mut bag =
+            McapBag::new(BufWriter::new(File::create(&path).unwrap()), "run.mcap").unwrap();
+        bag.add_topic::<Odometry>(&topics.odom).unwrap();
+        bag.add_topic::<AckermannDriveStamped>(&topics.drive)
+            .unwrap();
+        let s = 1_000_000_000u64;
+        let mut odom = Odometry::default();
+        // odometry before the first command is left out
+        bag.write(&topics.odom, &odom, 5 * s, 5 * s).unwrap();
+        let cmd = |steer: f32, speed: f32| AckermannDriveStamped {
+            header: Header::default(),
+            drive: AckermannDrive {
+                steering_angle: steer,
+                speed,
+                ..Default::default()
+            },
+        };
+        bag.write(&topics.drive, &cmd(0.1, 2.0), 6 * s, 6 * s)
+            .unwrap();
+        for k in 0..4u64 {
+            odom.pose.pose.position.x = k as f64;
+            odom.pose.pose.orientation = Quaternion::from_yaw(3.0 + k as f64);
+            odom.twist.twist.linear.x = 1.5;
+            bag.write(&topics.odom, &odom, 6 * s + k * s / 10, 0)
+                .unwrap();
+        }
+        bag.write(&topics.drive, &cmd(-0.2, 3.0), 6 * s + s / 10, 0)
+            .unwrap();
+        bag.finish().unwrap().flush().unwrap();
+        let rows = read_gap_rows(&path, &topics).unwrap();
+        assert_eq!(rows.len(), 4);
+        assert_eq!(rows[0].t, 0.0);
+        assert!((rows[3].t - 0.3).abs() < 1e-9);
+        assert_eq!((rows[0].steer_cmd as f32, rows[0].speed_cmd), (0.1, 2.0));
+        // a command logged at the same time as an odometry message applies to it
+        assert_eq!((rows[1].steer_cmd as f32, rows[1].speed_cmd), (-0.2, 3.0));
+        for r in &rows {
+            assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.yaw));
+        }
+        let csv = dir.join("run.csv");
+        assert_eq!(export_csv(&path, &csv, &topics).unwrap(), 4);
+        let text = std::fs::read_to_string(&csv).unwrap();
+        assert!(text.starts_with(&format!("{GAP_CSV_HEADER}\n0,")));
+        // errors name the file and what is missing
+        let other = TopicNames {
+            drive: "/other".into(),
+            ..TopicNames::default()
+        };
+        let e = read_gap_rows(&path, &other).unwrap_err().to_string();
+        assert!(e.contains("/other") && e.contains("run.mcap"), "{e}");
+        std::fs::write(&csv, b"not mcap").unwrap();
+        assert!(read_gap_rows(&csv, &topics).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

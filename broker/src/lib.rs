@@ -1,0 +1,32 @@
+//! # paddock-broker: the ZeroMQ MapReduce broker
+//!
+//! Clients (the CLI, Python learners) send rollout batches, env-session requests and
+//! jobs to the broker's frontend ROUTER; workers connect to its backend ROUTER,
+//! announce their capacity and run tasks. The broker hands each worker at most as many
+//! tasks as its capacity (credit), takes turns between batches so a huge one does not
+//! starve a small one, requeues the tasks of workers that fall silent, drops late
+//! duplicate results by task id and reduces results in task order, so a batch gives
+//! the same results bit for bit however many workers ran it. Jobs (tuning runs,
+//! benchmarks, stored batches) run as rounds in the broker and are stored in SQLite
+//! after every round, so a restarted broker resumes them.
+//!
+//! Layers, each testable alone:
+//! - [`core`]: the protocol state machines (worker liveness and credit, the task
+//!   table with fairness and bounds, env-session routing), free of sockets and of the
+//!   wall clock, unit-tested with a virtual clock;
+//! - [`state`]: the store under `--state DIR` (job table, maps by content hash);
+//! - [`jobs`]: what each job kind hands out per round and how it reduces;
+//! - [`server`]: [`Broker`], the socket loop around them;
+//! - [`client`]: a small blocking client ([`client::Client`]) for the CLI and tests.
+//!
+//! The wire protocol is described in `proto/PROTOCOL.md`.
+
+pub mod client;
+pub mod core;
+pub mod jobs;
+pub mod server;
+pub mod state;
+
+/// ZeroMQ with CURVE: key pairs, socket security, the ZAP authenticator.
+pub use paddock_libzmq as curve;
+pub use server::{Broker, BrokerConfig, BrokerError, Security};

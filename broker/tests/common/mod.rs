@@ -1,0 +1,443 @@
+//! Test harness: a real [`Broker`] on loopback ports, raw DEALER clients and a raw test
+//! worker that runs episodes with `paddock_rollout::run_episode` (or fakes env
+//! sessions), with knobs to misbehave.
+
+#![allow(dead_code)]
+
+use std::collections::{HashMap, VecDeque};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use paddock_broker::{Broker, BrokerConfig};
+use paddock_proto::convert::{outcome_to_proto, task_from_assign};
+use paddock_proto::{Body, MapRef, encode};
+
+pub struct TestBroker {
+    pub frontend: String,
+    pub backend: String,
+    pub stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl TestBroker {
+    /// Starts a broker on free loopback ports; `tweak` adjusts the config.
+    pub fn start(state: PathBuf, tweak: impl FnOnce(&mut BrokerConfig)) -> Self {
+        let mut cfg = BrokerConfig::new("tcp://127.0.0.1:0", "tcp://127.0.0.1:0", state);
+        tweak(&mut cfg);
+        let mut broker = Broker::bind(cfg).expect("broker binds");
+        let frontend = broker.frontend_endpoint().to_string();
+        let backend = broker.backend_endpoint().to_string();
+        let stop = Arc::new(AtomicBool::new(false));
+        let s = stop.clone();
+        let handle = std::thread::spawn(move || broker.run(&s).expect("broker runs"));
+        Self {
+            frontend,
+            backend,
+            stop,
+            handle: Some(handle),
+        }
+    }
+
+    pub fn shutdown(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            h.join().expect("broker thread");
+        }
+    }
+}
+
+impl Drop for TestBroker {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+/// A raw DEALER speaking bytes to the broker.
+pub struct RawPeer {
+    _ctx: zmq::Context,
+    pub socket: zmq::Socket,
+}
+
+impl RawPeer {
+    pub fn connect(endpoint: &str) -> Self {
+        let ctx = zmq::Context::new();
+        let socket = ctx.socket(zmq::DEALER).unwrap();
+        socket.set_linger(0).unwrap();
+        socket.connect(endpoint).unwrap();
+        Self { _ctx: ctx, socket }
+    }
+
+    pub fn send_raw(&self, bytes: &[u8]) {
+        self.socket.send(bytes, 0).unwrap();
+    }
+
+    pub fn send(&self, rid: u64, body: Body) {
+        self.send_raw(&encode(rid, body));
+    }
+
+    /// The next message (panics after `timeout`).
+    pub fn recv(&self, timeout: Duration) -> (u64, Body) {
+        self.try_recv(timeout)
+            .unwrap_or_else(|| panic!("no message within {timeout:?}"))
+    }
+
+    pub fn try_recv(&self, timeout: Duration) -> Option<(u64, Body)> {
+        if self
+            .socket
+            .poll(zmq::POLLIN, timeout.as_millis() as i64)
+            .unwrap()
+            == 0
+        {
+            return None;
+        }
+        let frame = self.socket.recv_bytes(0).unwrap();
+        Some(paddock_proto::decode(&frame).expect("the broker sends valid envelopes"))
+    }
+
+    /// The reply to request `rid`, skipping progress messages.
+    pub fn reply_to(&self, rid: u64, timeout: Duration) -> Body {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let (id, body) = self.recv(left.max(Duration::from_millis(1)));
+            if id == rid && !matches!(body, Body::RolloutProgress(_)) {
+                return body;
+            }
+        }
+    }
+}
+
+/// The shipped default map as a bundle and its reference.
+pub fn lakeside() -> (paddock_proto::MapBundle, MapRef) {
+    let b = paddock_proto::convert::local_map("lakeside").unwrap();
+    let r = paddock_proto::convert::map_ref(&b);
+    (b, r)
+}
+
+/// Stores the default map in the broker through `peer`.
+pub fn put_lakeside(peer: &RawPeer) -> MapRef {
+    let (bundle, r) = lakeside();
+    peer.send(
+        9_000,
+        Body::PutMap(paddock_proto::PutMap {
+            bundle: Some(bundle),
+        }),
+    );
+    match peer.reply_to(9_000, Duration::from_secs(10)) {
+        Body::MapStored(m) => assert_eq!(m.hash, r.hash),
+        other => panic!("expected map_stored, got {other:?}"),
+    }
+    r
+}
+
+/// A short single-car scenario (fast episodes).
+pub fn short_scenario(time_limit: f64) -> paddock_rollout::Scenario {
+    let mut s = paddock_rollout::Scenario::single("pure-pursuit").unwrap();
+    s.time_limit = time_limit;
+    s
+}
+
+/// Knobs of the test worker.
+#[derive(Clone)]
+pub struct WorkerOpts {
+    pub capacity: u32,
+    /// Hold each task this long before answering (tasks pile up to test credit).
+    pub delay: Duration,
+    /// After receiving this many tasks, go silent for good (no results, no heartbeats).
+    pub silent_after: Option<usize>,
+    /// Send every result twice.
+    pub duplicate: bool,
+    pub heartbeat: Duration,
+    pub id: String,
+}
+
+impl Default for WorkerOpts {
+    fn default() -> Self {
+        Self {
+            capacity: 2,
+            delay: Duration::ZERO,
+            silent_after: None,
+            duplicate: false,
+            heartbeat: Duration::from_millis(100),
+            id: "w".into(),
+        }
+    }
+}
+
+#[derive(Default)]
+pub struct WorkerStats {
+    pub received: AtomicUsize,
+    pub answered: AtomicUsize,
+    pub max_in_flight: AtomicUsize,
+    /// Task ids received, in order.
+    pub tasks: Mutex<Vec<u64>>,
+    /// Request ids and session ids of env requests received.
+    pub env_requests: Mutex<Vec<(u64, u64)>>,
+    pub welcomed: AtomicBool,
+}
+
+pub struct TestWorker {
+    pub stats: Arc<WorkerStats>,
+    pub stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl Drop for TestWorker {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+impl TestWorker {
+    pub fn spawn(backend: &str, opts: WorkerOpts, cache: PathBuf) -> Self {
+        let stats = Arc::new(WorkerStats::default());
+        let stop = Arc::new(AtomicBool::new(false));
+        let (st, sp) = (stats.clone(), stop.clone());
+        let backend = backend.to_string();
+        let handle = std::thread::spawn(move || worker_loop(&backend, opts, cache, &st, &sp));
+        Self {
+            stats,
+            stop,
+            handle: Some(handle),
+        }
+    }
+
+    pub fn wait_welcomed(&self) {
+        let t0 = Instant::now();
+        while !self.stats.welcomed.load(Ordering::Relaxed) {
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "worker never welcomed"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+}
+
+fn task_hash(t: &paddock_proto::TaskAssign) -> String {
+    t.scenario
+        .as_ref()
+        .and_then(|s| s.map.as_ref())
+        .map(|m| m.hash.clone())
+        .unwrap_or_default()
+}
+
+/// Runs episodes on its own thread, so the message loop keeps heartbeating (as a real
+/// worker does) however long an episode takes.
+fn compute_thread(
+    jobs: std::sync::mpsc::Receiver<(paddock_proto::TaskAssign, PathBuf)>,
+    results: std::sync::mpsc::Sender<(u64, paddock_proto::TaskOutcome)>,
+) {
+    for (t, dir) in jobs {
+        let task = task_from_assign(&t, &dir).expect("the broker checked the task");
+        let r = paddock_rollout::run_episode(&task.scenario, task.seed, task.record);
+        if results.send((t.task_id, outcome_to_proto(&r))).is_err() {
+            return;
+        }
+    }
+}
+
+fn hello(peer: &RawPeer, opts: &WorkerOpts) {
+    peer.send(
+        1,
+        Body::WorkerHello(paddock_proto::WorkerHello {
+            worker_id: opts.id.clone(),
+            capacity: opts.capacity,
+            version: "test".into(),
+            hostname: "test-host".into(),
+            maps: vec![],
+        }),
+    );
+}
+
+fn worker_loop(
+    backend: &str,
+    opts: WorkerOpts,
+    cache: PathBuf,
+    stats: &WorkerStats,
+    stop: &AtomicBool,
+) {
+    let peer = RawPeer::connect(backend);
+    hello(&peer, &opts);
+    let (job_tx, job_rx) = std::sync::mpsc::channel();
+    let (res_tx, res_rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || compute_thread(job_rx, res_tx));
+    let mut maps: HashMap<String, PathBuf> = HashMap::new();
+    let mut asked: HashMap<String, bool> = HashMap::new();
+    let mut pending: VecDeque<(Instant, paddock_proto::TaskAssign)> = VecDeque::new();
+    let mut outstanding = 0usize;
+    let mut last_beat = Instant::now();
+    let mut silent = false;
+    let mut next_session = 1u64;
+    while !stop.load(Ordering::Relaxed) {
+        let wait = if outstanding > 0 && !silent {
+            Duration::from_millis(1)
+        } else {
+            Duration::from_millis(5)
+        };
+        if let Some((rid, body)) = peer.try_recv(wait) {
+            match body {
+                Body::WorkerWelcome(_) => stats.welcomed.store(true, Ordering::Relaxed),
+                // the broker forgot us (declared dead while busy): register again
+                Body::Error(e) if e.field == "worker_id" && !silent => hello(&peer, &opts),
+                Body::TaskAssign(t) => {
+                    let n = stats.received.fetch_add(1, Ordering::Relaxed) + 1;
+                    stats.tasks.lock().unwrap().push(t.task_id);
+                    if opts.silent_after.is_some_and(|k| n > k) {
+                        silent = true;
+                    }
+                    let hash = task_hash(&t);
+                    if !maps.contains_key(&hash) && !asked.contains_key(&hash) && !silent {
+                        asked.insert(hash.clone(), true);
+                        peer.send(2, Body::MapRequest(paddock_proto::MapRequest { hash }));
+                    }
+                    pending.push_back((Instant::now() + opts.delay, t));
+                    outstanding += 1;
+                    stats
+                        .max_in_flight
+                        .fetch_max(outstanding, Ordering::Relaxed);
+                }
+                Body::MapBundle(b) => {
+                    let dir = cache.join(&b.hash).join(&b.name);
+                    paddock_proto::write_map_dir(&b, &dir).unwrap();
+                    maps.insert(b.hash.clone(), dir);
+                }
+                Body::EnvOpen(o) if !silent => {
+                    stats.env_requests.lock().unwrap().push((rid, 0));
+                    let sid = next_session;
+                    next_session += 1;
+                    peer.send(
+                        rid,
+                        Body::EnvOpened(paddock_proto::EnvOpened {
+                            session_id: sid,
+                            num_envs: o.num_envs,
+                            ..Default::default()
+                        }),
+                    );
+                }
+                Body::EnvStep(s) if !silent => {
+                    stats.env_requests.lock().unwrap().push((rid, s.session_id));
+                    if opts.silent_after == Some(0) {
+                        silent = true;
+                        continue;
+                    }
+                    // echo the actions back as rewards, tagged with the worker's session
+                    peer.send(
+                        rid,
+                        Body::EnvObservation(paddock_proto::EnvObservation {
+                            session_id: s.session_id,
+                            rewards: s.actions,
+                            ..Default::default()
+                        }),
+                    );
+                }
+                Body::EnvClose(c) if !silent => {
+                    peer.send(
+                        rid,
+                        Body::EnvClosed(paddock_proto::EnvClosed {
+                            session_id: c.session_id,
+                        }),
+                    );
+                }
+                _ => {}
+            }
+        }
+        if silent {
+            continue;
+        }
+        while let Some((due, t)) = pending.front() {
+            let Some(dir) = maps.get(&task_hash(t)) else {
+                break;
+            };
+            if *due > Instant::now() {
+                break;
+            }
+            let dir = dir.clone();
+            let (_, t) = pending.pop_front().expect("front exists");
+            job_tx.send((t, dir)).expect("compute thread alive");
+        }
+        while let Ok((task_id, outcome)) = res_rx.try_recv() {
+            let msg = Body::TaskResult(paddock_proto::TaskResult {
+                task_id,
+                outcome: Some(outcome),
+            });
+            peer.send(task_id, msg.clone());
+            if opts.duplicate {
+                peer.send(task_id, msg);
+            }
+            outstanding -= 1;
+            stats.answered.fetch_add(1, Ordering::Relaxed);
+        }
+        if last_beat.elapsed() >= opts.heartbeat {
+            last_beat = Instant::now();
+            peer.send(
+                0,
+                Body::Heartbeat(paddock_proto::Heartbeat {
+                    in_flight: outstanding as u32,
+                }),
+            );
+        }
+    }
+}
+
+/// The outcomes of a batch run locally, in task order.
+pub fn run_locally(batch: &paddock_proto::RolloutBatch) -> Vec<paddock_proto::TaskOutcome> {
+    let dir = paddock_sim::track::Circuit::resolve("lakeside", &[])
+        .unwrap()
+        .dir
+        .clone();
+    batch
+        .tasks
+        .iter()
+        .map(|t| {
+            let sc = paddock_proto::convert::scenario_from_proto(
+                &batch.scenarios[t.scenario as usize],
+                &dir,
+            )
+            .unwrap();
+            let r = paddock_rollout::run_episode(
+                &sc,
+                t.seed,
+                paddock_proto::convert::record_from_proto(t.record_decimation),
+            );
+            outcome_to_proto(&r)
+        })
+        .collect()
+}
+
+/// A batch of `n` short episodes on `map` with seeds from `seed`.
+pub fn batch(map: &MapRef, n: usize, seed: u64, time_limit: f64) -> paddock_proto::RolloutBatch {
+    let sc = paddock_proto::convert::scenario_to_proto(&short_scenario(time_limit), map.clone());
+    paddock_proto::RolloutBatch {
+        scenarios: vec![sc],
+        tasks: (0..n as u64)
+            .map(|k| paddock_proto::RolloutTaskSpec {
+                scenario: 0,
+                seed: paddock_rollout::task_seed(seed, k),
+                record_decimation: if k == 0 { 5 } else { 0 },
+            })
+            .collect(),
+        progress: true,
+    }
+}
+
+pub fn status(peer: &RawPeer, rid: u64) -> paddock_proto::BrokerStatus {
+    peer.send(rid, Body::StatusRequest(paddock_proto::StatusRequest {}));
+    match peer.reply_to(rid, Duration::from_secs(10)) {
+        Body::BrokerStatus(s) => s,
+        other => panic!("expected broker_status, got {other:?}"),
+    }
+}
+
+pub fn expect_error(body: Body) -> paddock_proto::Error {
+    match body {
+        Body::Error(e) => e,
+        other => panic!("expected an error, got {other:?}"),
+    }
+}

@@ -1,0 +1,417 @@
+//! `paddock bridge`: a Paddock driver on the ROS 2 car, the software-in-the-loop car,
+//! recordings to MCAP and their export to the reality-gap CSV.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
+use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
+use paddock_bridge::ros::{QosConfig, RosConfig, parse_domain_id};
+use paddock_bridge::safety::SafetyConfig;
+use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
+use paddock_sim::collision::CollisionMode;
+use paddock_sim::params::VehicleParams;
+use paddock_sim::track::{Circuit, DEFAULT_MAP};
+
+#[derive(Args)]
+pub struct BridgeArgs {
+    #[command(subcommand)]
+    command: BridgeCommand,
+}
+
+#[derive(Subcommand)]
+enum BridgeCommand {
+    /// Run a driver on the car: subscribe /scan and /odom, publish /drive, behind the
+    /// safety layer (stale-sensor stop, clamps, time-to-collision stop, stop on Ctrl-C).
+    Drive(DriveArgs),
+    /// The software-in-the-loop car: the simulator with the car's topics, in real time.
+    Sil(SilArgs),
+    /// Record /scan, /odom and /drive to an MCAP file (a ROS 2 bag).
+    Record(RecordArgs),
+    /// Export an MCAP recording to the reality-gap CSV (t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate).
+    ExportCsv(ExportArgs),
+}
+
+/// ROS 2 settings shared by the node commands.
+#[derive(Args, Clone)]
+struct RosArgs {
+    /// DDS domain (default: $ROS_DOMAIN_ID, else 0).
+    #[arg(long)]
+    domain_id: Option<String>,
+    #[arg(long, default_value = "/scan")]
+    scan_topic: String,
+    #[arg(long, default_value = "/odom")]
+    odom_topic: String,
+    #[arg(long, default_value = "/drive")]
+    drive_topic: String,
+    #[arg(long, default_value = "/initialpose")]
+    initialpose_topic: String,
+    #[arg(long, default_value = "/opp_scan")]
+    opp_scan_topic: String,
+    #[arg(long, default_value = "/opp_odom")]
+    opp_odom_topic: String,
+    #[arg(long, default_value = "/opp_drive")]
+    opp_drive_topic: String,
+    /// Odometry header frame id.
+    #[arg(long, default_value = "odom")]
+    odom_frame: String,
+    /// The car's body frame (odometry child frame, drive commands).
+    #[arg(long, default_value = "base_link")]
+    base_frame: String,
+    #[arg(long, default_value = "laser")]
+    laser_frame: String,
+    /// Publish best effort instead of reliable.
+    #[arg(long)]
+    publish_best_effort: bool,
+    /// Subscribe reliable instead of best effort (then only reliable publishers match).
+    #[arg(long)]
+    subscribe_reliable: bool,
+    /// QoS history depth (keep last N) of publishers and subscriptions.
+    #[arg(long, default_value_t = 5)]
+    qos_depth: usize,
+}
+
+impl RosArgs {
+    fn config(&self) -> Result<RosConfig> {
+        let mut c = RosConfig::from_env()?;
+        if let Some(d) = &self.domain_id {
+            c.domain_id = parse_domain_id(d).context("--domain-id")?;
+        }
+        c.topics.scan = self.scan_topic.clone();
+        c.topics.odom = self.odom_topic.clone();
+        c.topics.drive = self.drive_topic.clone();
+        c.topics.initialpose = self.initialpose_topic.clone();
+        c.topics.opp_scan = self.opp_scan_topic.clone();
+        c.topics.opp_odom = self.opp_odom_topic.clone();
+        c.topics.opp_drive = self.opp_drive_topic.clone();
+        c.frames.odom = self.odom_frame.clone();
+        c.frames.base = self.base_frame.clone();
+        c.frames.laser = self.laser_frame.clone();
+        c.publish_qos = QosConfig {
+            reliable: !self.publish_best_effort,
+            depth: self.qos_depth,
+        };
+        c.subscribe_qos = QosConfig {
+            reliable: self.subscribe_reliable,
+            depth: self.qos_depth,
+        };
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+#[derive(Args)]
+struct DriveArgs {
+    /// A `paddock tune` result.json, or a driver name (`paddock drivers`).
+    #[arg(long)]
+    policy: String,
+    /// Parameter overrides, `name=value,name=value`.
+    #[arg(long)]
+    params: Option<String>,
+    /// The map (shipped name or directory) for map-based drivers; default: the tune
+    /// result's map, else the default map. Their pose comes from /odom (map frame).
+    #[arg(long)]
+    map: Option<String>,
+    /// Steering limit, rad.
+    #[arg(long, default_value_t = 0.4189, allow_hyphen_values = true)]
+    max_steer: f64,
+    /// Speed limit, m/s (raise it deliberately).
+    #[arg(long, default_value_t = 4.0, allow_hyphen_values = true)]
+    max_speed: f64,
+    /// Lowest speed, m/s (negative allows reversing).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    min_speed: f64,
+    /// A sensor older than this stops the car, s.
+    #[arg(long, default_value_t = 0.25)]
+    sensor_timeout: f64,
+    /// Emergency stop below this time to collision, s (0 disables it).
+    #[arg(long, default_value_t = 0.25)]
+    ttc: f64,
+    /// The emergency stop releases after this long clear, s.
+    #[arg(long, default_value_t = 0.5)]
+    ttc_release: f64,
+    /// Half width of the straight-ahead strip whose returns count for the TTC, m
+    /// (0: every beam, the classic per-beam TTC).
+    #[arg(long, default_value_t = 0.2)]
+    ttc_corridor: f64,
+    /// Least command rate, Hz (commands also follow every new sensor message).
+    #[arg(long, default_value_t = 40.0)]
+    rate_hz: f64,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    seconds: Option<f64>,
+    #[command(flatten)]
+    ros: RosArgs,
+}
+
+#[derive(Args)]
+struct SilArgs {
+    /// Map: shipped name or directory.
+    #[arg(long, default_value = DEFAULT_MAP)]
+    map: String,
+    /// A second car: a driver name (driven inside the SIL) or `ros` (driven over
+    /// /opp_drive).
+    #[arg(long)]
+    opponent: Option<String>,
+    /// Parameter overrides for the opponent driver, `name=value,...`.
+    #[arg(long)]
+    opponent_params: Option<String>,
+    /// Simulated seconds per wall-clock second (1 = real time).
+    #[arg(long, default_value_t = 1.0)]
+    rate: f64,
+    #[arg(long, default_value_t = 40.0)]
+    scan_hz: f64,
+    #[arg(long, default_value_t = 100.0)]
+    odom_hz: f64,
+    /// End after the ego car drives this many laps.
+    #[arg(long)]
+    laps: Option<u32>,
+    /// End after this many simulated seconds.
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Start at this arc length along the centerline, m.
+    #[arg(long, default_value_t = 0.0)]
+    start_s: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// LIDAR noise standard deviation, m.
+    #[arg(long, default_value_t = 0.01)]
+    lidar_noise: f64,
+    /// What a collision does: stop (put back and halted), terminate, ignore.
+    #[arg(long, default_value = "stop")]
+    collision: String,
+    /// Hold the simulation until the first /drive command.
+    #[arg(long)]
+    wait_for_drive: bool,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    ros: RosArgs,
+}
+
+#[derive(Args)]
+struct RecordArgs {
+    #[arg(long)]
+    out: PathBuf,
+    /// Stop after this many seconds (else Ctrl-C).
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Log time of each message: `header` (its stamp) or `receive` (arrival).
+    #[arg(long, default_value = "header")]
+    clock: String,
+    #[command(flatten)]
+    ros: RosArgs,
+}
+
+#[derive(Args)]
+struct ExportArgs {
+    /// The MCAP recording.
+    recording: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value = "/drive")]
+    drive_topic: String,
+    #[arg(long, default_value = "/odom")]
+    odom_topic: String,
+}
+
+pub fn run(args: &BridgeArgs) -> Result<()> {
+    match &args.command {
+        BridgeCommand::Drive(a) => drive(a),
+        BridgeCommand::Sil(a) => sil(a),
+        BridgeCommand::Record(a) => rec(a),
+        BridgeCommand::ExportCsv(a) => export(a),
+    }
+}
+
+/// A flag set by Ctrl-C (SIGINT) and SIGTERM.
+fn stop_flag() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let s = stop.clone();
+    ctrlc::set_handler(move || s.store(true, Ordering::Relaxed))
+        .context("installing the Ctrl-C handler")?;
+    Ok(stop)
+}
+
+fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
+    let Some(text) = text else {
+        return Ok(Vec::new());
+    };
+    text.split(',')
+        .filter(|p| !p.trim().is_empty())
+        .map(|pair| {
+            let (name, value) = pair
+                .split_once('=')
+                .with_context(|| format!("--params: {pair:?} is not name=value"))?;
+            let v: f64 = value
+                .trim()
+                .parse()
+                .with_context(|| format!("--params: {}: {value:?} is not a number", name.trim()))?;
+            Ok((name.trim().to_string(), v))
+        })
+        .collect()
+}
+
+fn drive(a: &DriveArgs) -> Result<()> {
+    let ros = a.ros.config()?;
+    let spec = DriverSpec::resolve(&a.policy, &overrides(a.params.as_deref())?)?;
+    let map = a
+        .map
+        .clone()
+        .or_else(|| spec.map.clone())
+        .unwrap_or_else(|| DEFAULT_MAP.to_string());
+    let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("--map {map}"))?;
+    let driver = spec.build(&circuit, &VehicleParams::default())?;
+    let options = DriveOptions {
+        rate_hz: a.rate_hz,
+        seconds: a.seconds,
+        safety: SafetyConfig {
+            max_steer: a.max_steer,
+            max_speed: a.max_speed,
+            min_speed: a.min_speed,
+            sensor_timeout: a.sensor_timeout,
+            ttc_threshold: a.ttc,
+            ttc_release: a.ttc_release,
+            corridor_half_width: a.ttc_corridor,
+        },
+        ..DriveOptions::default()
+    };
+    let core = DriveCore::new(driver, options.lidar.clone(), options.safety)?;
+    let stop = stop_flag()?;
+    eprintln!(
+        "driving {} (map {}) on {} -> {}, domain {}; Ctrl-C stops the car",
+        spec.name, circuit.name, ros.topics.scan, ros.topics.drive, ros.domain_id
+    );
+    let s = run_drive(core, &ros, &options, &stop)?;
+    let l = &s.latency;
+    let c = &s.safety;
+    println!(
+        "{} commands in {:.1} s ({} scans, {} odometry); zero speed sent at exit",
+        s.commands, s.duration_s, s.scans, s.odoms
+    );
+    println!(
+        "{}->drive latency over {} commands: mean {:.2} ms, p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        s.trigger, l.count, l.mean_ms, l.p50_ms, l.p99_ms, l.max_ms
+    );
+    let e = &s.end_to_end;
+    if e.count > 0 {
+        println!(
+            "{} publish->drive publish (DDS source stamps, same-host clock) over {}: mean {:.2} ms, p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+            s.trigger, e.count, e.mean_ms, e.p50_ms, e.p99_ms, e.max_ms
+        );
+    }
+    println!(
+        "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} clamped, {} invalid",
+        c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.clamped, c.invalid
+    );
+    Ok(())
+}
+
+fn sil(a: &SilArgs) -> Result<()> {
+    let ros = a.ros.config()?;
+    let opponent = match a.opponent.as_deref() {
+        None => None,
+        Some("ros") => Some(Opponent::Ros),
+        Some(name) => Some(Opponent::Driver(
+            DriverSpec::resolve(name, &overrides(a.opponent_params.as_deref())?)
+                .context("--opponent")?,
+        )),
+    };
+    let collision_mode: CollisionMode = a
+        .collision
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("--collision: {e}"))?;
+    let mut lidar = paddock_sim::lidar::LidarConfig::default();
+    if !(a.lidar_noise.is_finite() && a.lidar_noise >= 0.0) {
+        anyhow::bail!("--lidar-noise = {}: must be a number >= 0", a.lidar_noise);
+    }
+    lidar.noise_std = a.lidar_noise;
+    let options = SilOptions {
+        map: a.map.clone(),
+        rate: a.rate,
+        scan_hz: a.scan_hz,
+        odom_hz: a.odom_hz,
+        laps: a.laps,
+        seconds: a.seconds,
+        start_s: a.start_s,
+        seed: a.seed,
+        lidar,
+        opponent,
+        collision_mode,
+        wait_for_drive: a.wait_for_drive,
+        ..SilOptions::default()
+    };
+    let stop = stop_flag()?;
+    eprintln!(
+        "SIL car on {} at {}x real time, domain {}; Ctrl-C ends",
+        a.map, a.rate, ros.domain_id
+    );
+    let s = run_sil(&options, &ros, &stop)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    println!(
+        "{}: {:.2} s simulated in {:.2} s wall ({} steps), {} drive messages, max lag {:.1} ms",
+        s.map,
+        s.sim_time,
+        s.wall_s,
+        s.steps,
+        s.drive_messages,
+        s.max_lag_s * 1e3
+    );
+    for (i, laps) in s.lap_times.iter().enumerate() {
+        let shown: Vec<String> = laps.iter().map(|t| format!("{t:.2}")).collect();
+        println!(
+            "car {i}: laps [{}] s, {} steps in collision",
+            shown.join(", "),
+            s.collision_steps[i]
+        );
+    }
+    Ok(())
+}
+
+fn rec(a: &RecordArgs) -> Result<()> {
+    let ros = a.ros.config()?;
+    let clock: LogClock = a
+        .clock
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("--clock: {e}"))?;
+    let stop = stop_flag()?;
+    eprintln!(
+        "recording {}, {}, {} to {}; Ctrl-C ends",
+        ros.topics.scan,
+        ros.topics.odom,
+        ros.topics.drive,
+        a.out.display()
+    );
+    let s = record(
+        &ros,
+        &a.out,
+        &RecordOptions {
+            seconds: a.seconds,
+            clock,
+        },
+        &stop,
+    )?;
+    for (topic, n) in &s.messages {
+        println!("{topic}: {n} messages");
+    }
+    println!("wrote {} ({:.1} s)", a.out.display(), s.duration_s);
+    Ok(())
+}
+
+fn export(a: &ExportArgs) -> Result<()> {
+    let topics = paddock_bridge::ros::TopicNames {
+        drive: a.drive_topic.clone(),
+        odom: a.odom_topic.clone(),
+        ..Default::default()
+    };
+    let rows = export_csv(&a.recording, &a.out, &topics)?;
+    println!("wrote {} ({rows} rows)", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,246 @@
+//! `paddock sysid synth`: a recording with physics effects hidden in it.
+//!
+//! A pure-pursuit driver laps a shipped map in closed loop, as a person drives a real car:
+//! it sees only noisy measurements, at about 40 Hz with jitter, and some cycles are lost
+//! (the command then stays as it was, and no row is logged). The car's physics carry the
+//! given effects, and small random disturbances (slowly varying yaw and longitudinal
+//! pushes) act on it. Everything comes from one seeded generator, so a seed gives the same
+//! file every time.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use paddock_policy::{PurePursuit, PurePursuitParams};
+use paddock_sim::dynamics::Vehicle;
+use paddock_sim::geometry::Pose;
+use paddock_sim::params::VehicleParams;
+use paddock_sim::rng::Rng;
+use paddock_sim::track::{Circuit, DEFAULT_MAP};
+use paddock_sysid::effects::{EffectKind, parse_effect_spec};
+use paddock_sysid::recording::{Command, McapTopics, Recording, StateSample, wrap_pi};
+use serde_json::json;
+
+const DT: f64 = 0.01;
+
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// An effect hidden in the car's physics: NAME[:param=value,...] (repeatable). Names:
+    /// steering_delay, steering_lag, steering_offset, drive_lag, drag, friction,
+    /// friction_patch (params mu, xmin, ymin, xmax, ymax; without a region the box sits
+    /// on the sharpest bend), tire_saturation. Missing parameters take typical values.
+    #[arg(long = "effect")]
+    effects: Vec<String>,
+    /// Map name or directory.
+    #[arg(long)]
+    map: Option<String>,
+    /// Length of the recording [s].
+    #[arg(long, default_value_t = 60.0)]
+    seconds: f64,
+    /// Seed of the noise, the disturbances and the logging jitter.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Lateral acceleration the driver plans with [m/s^2].
+    #[arg(long, default_value_t = 4.0)]
+    lat_accel: f64,
+    /// The driver's top speed [m/s].
+    #[arg(long, default_value_t = 6.0)]
+    max_speed: f64,
+    /// Nominal vehicle the effects are added to (default: the simulator's default).
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
+    /// Output: .csv, or .mcap for a ROS 2 bag. A `<out>.truth.json` sidecar records the
+    /// hidden effects.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Measurement noise (standard deviations): x, y [m], yaw [rad], vx, vy [m/s], yaw rate [rad/s].
+const NOISE: [f64; 6] = [0.02, 0.02, 0.01, 0.04, 0.03, 0.03];
+
+/// A first-order random process (Ornstein-Uhlenbeck), stepped at `DT`.
+struct Ou {
+    value: f64,
+    tau: f64,
+    std: f64,
+}
+
+impl Ou {
+    fn step(&mut self, rng: &mut Rng) -> f64 {
+        let a = libm::exp(-DT / self.tau);
+        self.value = a * self.value + self.std * libm::sqrt(1.0 - a * a) * rng.normal();
+        self.value
+    }
+}
+
+pub fn run(args: &SynthArgs) -> Result<()> {
+    if !(args.seconds.is_finite() && (5.0..=3600.0).contains(&args.seconds)) {
+        bail!("--seconds {} must be in [5, 3600]", args.seconds);
+    }
+    if !(args.lat_accel.is_finite() && args.lat_accel > 0.0) {
+        bail!("--lat-accel {} must be > 0", args.lat_accel);
+    }
+    if !(args.max_speed.is_finite() && args.max_speed > 0.0) {
+        bail!("--max-speed {} must be > 0", args.max_speed);
+    }
+    let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
+    let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
+    let nominal = match &args.vehicle {
+        Some(p) => VehicleParams::load(p)?,
+        None => VehicleParams::default(),
+    };
+    let line = circuit.driving_line();
+    let mut truth = nominal.clone();
+    let mut hidden = Vec::new();
+    for spec in &args.effects {
+        let (kind, mut v) = parse_effect_spec(spec)?;
+        if kind == EffectKind::FrictionPatch && v[1..].iter().any(|x| x.is_nan()) {
+            // the sharpest bend of the driving line, in a 5 m box
+            let p = line
+                .iter()
+                .max_by(|a, b| a.kappa.abs().total_cmp(&b.kappa.abs()))
+                .context("the map has no driving line")?;
+            v = vec![v[0], p.x - 2.5, p.y - 2.5, p.x + 2.5, p.y + 2.5];
+        }
+        if hidden.iter().any(|(k, _)| *k == kind) {
+            bail!("--effect {} given twice", kind.name());
+        }
+        kind.apply(&mut truth, &v);
+        hidden.push((kind, v));
+    }
+    truth
+        .validate()
+        .context("the effects give an invalid vehicle")?;
+
+    let defaults: Vec<f64> = paddock_policy::pure_pursuit::param_specs()
+        .iter()
+        .map(|s| s.default)
+        .collect();
+    let mut pp_params = PurePursuitParams::from_vector(&defaults, &nominal);
+    pp_params.lat_accel = args.lat_accel;
+    pp_params.max_speed = args.max_speed;
+    let mut driver = PurePursuit::on_circuit(&circuit, pp_params);
+
+    let start = line[0];
+    let mut car = Vehicle::new(Pose::new(start.x, start.y, start.psi));
+    let mut rng = Rng::new(args.seed);
+    let mut yaw_push = Ou {
+        value: 0.0,
+        tau: 0.4,
+        std: 0.4,
+    };
+    let mut speed_push = Ou {
+        value: 0.0,
+        tau: 0.6,
+        std: 0.2,
+    };
+    let mut rec = Recording::default();
+    let mut next_row = 0.0f64;
+    let mut cmd = (0.0, 0.0);
+    let mut prev = car.state;
+    let mut prev_body = car.body_velocity();
+    let steps = (args.seconds / DT).floor() as usize;
+    for k in 0..=steps {
+        let tk = k as f64 * DT;
+        // controller cycles that fall in (t_{k-1}, t_k]: measure, decide, log
+        while next_row <= tk + 1e-9 {
+            let f = if k == 0 {
+                1.0
+            } else {
+                ((next_row - (tk - DT)) / DT).clamp(0.0, 1.0)
+            };
+            let now = car.state;
+            let lerp = |a: f64, b: f64| a + f * (b - a);
+            let (vx0, vy0) = prev_body;
+            let (vx1, vy1) = car.body_velocity();
+            let exact = [
+                lerp(prev.x, now.x),
+                lerp(prev.y, now.y),
+                prev.yaw + f * wrap_pi(now.yaw - prev.yaw),
+                lerp(vx0, vx1),
+                lerp(vy0, vy1),
+                lerp(prev.yaw_rate, now.yaw_rate),
+            ];
+            let m: [f64; 6] = std::array::from_fn(|c| exact[c] + NOISE[c] * rng.normal());
+            let dropped = next_row > 0.0 && rng.uniform() < 0.03;
+            if !dropped {
+                let a = driver.act_pose(Pose::new(m[0], m[1], m[2]), m[3]);
+                cmd = (a.steer, a.speed);
+                rec.commands.push(Command {
+                    t: next_row,
+                    steer: cmd.0,
+                    speed: cmd.1,
+                });
+                rec.states.push(StateSample {
+                    t: next_row,
+                    x: m[0],
+                    y: m[1],
+                    yaw: wrap_pi(m[2]),
+                    vx: m[3],
+                    vy: m[4],
+                    yaw_rate: m[5],
+                });
+            }
+            next_row = ((next_row + 0.025 + rng.uniform_range(-0.005, 0.005)) * 1e4).round() / 1e4;
+        }
+        if k == steps {
+            break;
+        }
+        prev = car.state;
+        prev_body = car.body_velocity();
+        car.step(&truth, cmd.0, cmd.1, DT);
+        // random disturbances: small pushes in yaw and speed while moving
+        let moving = (car.state.v.abs() / 1.0).min(1.0);
+        let r = yaw_push.step(&mut rng);
+        let a = speed_push.step(&mut rng);
+        car.state.yaw_rate += moving * r * DT;
+        car.state.v += moving * a * DT;
+        if !car.state.v.is_finite() || car.state.v.abs() > 50.0 {
+            bail!("the car became unstable at t = {tk:.2} s with these effects; try milder values");
+        }
+    }
+
+    let out = &args.out;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let is_mcap = out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    if is_mcap {
+        std::fs::write(out, rec.to_mcap(&McapTopics::default())?)
+    } else {
+        std::fs::write(out, rec.to_csv_string())
+    }
+    .with_context(|| format!("writing {}", out.display()))?;
+    let truth_json = json!({
+        "map": circuit.name,
+        "seed": args.seed,
+        "seconds": args.seconds,
+        "effects": hidden.iter().map(|(k, v)| json!({"name": k.name(), "params": k.params_json(v)})).collect::<Vec<_>>(),
+        "noise_std": {"x": NOISE[0], "y": NOISE[1], "yaw": NOISE[2], "vx": NOISE[3], "vy": NOISE[4], "yaw_rate": NOISE[5]},
+    });
+    let mut sidecar = out.as_os_str().to_owned();
+    sidecar.push(".truth.json");
+    let sidecar = PathBuf::from(sidecar);
+    std::fs::write(&sidecar, serde_json::to_string_pretty(&truth_json)?)
+        .with_context(|| format!("writing {}", sidecar.display()))?;
+    println!(
+        "wrote {} ({} rows over {:.1} s on {}, hidden: {}) and {}",
+        out.display(),
+        rec.states.len(),
+        args.seconds,
+        circuit.name,
+        if hidden.is_empty() {
+            "nothing".to_string()
+        } else {
+            hidden
+                .iter()
+                .map(|(k, v)| format!("{} {}", k.name(), k.params_json(v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        },
+        sidecar.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,27 @@
+"""Paddock's Python client: gymnasium envs, vector envs and batch rollouts whose
+simulation runs on a Paddock broker's workers (ZeroMQ + protobuf).
+
+- ``gymnasium.make("paddock/F110-v0", endpoint="tcp://HOST:PORT", map="lakeside")``
+  (``endpoint=None`` starts a local ``paddock serve``)
+- ``gymnasium.make_vec("paddock/F110-v0", num_envs=64, ...)`` or :func:`make_vec`
+- ``Client(endpoint).rollouts(policy, params, seeds)``, ``submit_tune``, ``jobs``
+"""
+
+from __future__ import annotations
+
+import gymnasium as _gym
+
+from . import errors
+from .client import Client, Job, JobInfo, RolloutResults, driver_defaults, drivers
+from .env import EnvSession, F110Env, F110VectorEnv, make_vec
+from .server import LocalServer
+
+ENV_ID = "paddock/F110-v0"
+
+if ENV_ID not in _gym.registry:
+    _gym.register(id=ENV_ID, entry_point="paddock.env:F110Env",
+                  vector_entry_point="paddock.env:F110VectorEnv")
+
+__all__ = ["Client", "EnvSession", "F110Env", "F110VectorEnv", "Job", "JobInfo", "LocalServer",
+           "RolloutResults", "driver_defaults", "drivers", "errors", "make_vec", "ENV_ID"]
+__version__ = "0.1.0"

@@ -1,0 +1,249 @@
+"""Batch rollouts and jobs through a broker.
+
+``Client(endpoint).rollouts(policy, params, seeds)`` runs one episode per (parameter
+vector, seed) on the broker's workers and returns numpy arrays in that order: the inner
+loop of evolution strategies and CMA-ES. ``submit_tune`` starts a tuning job that the
+broker runs and stores; ``jobs()`` lists them; ``Job.wait()`` follows one to its result.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import errors
+from ._proto import paddock_pb2 as pb
+from .server import LocalServer
+from .transport import Connection
+
+_COLLISION = {"terminate": pb.COLLISION_TERMINATE, "stop": pb.COLLISION_STOP,
+              "ignore": pb.COLLISION_IGNORE}
+_TERMINATION = {pb.FINISHED: "finished", pb.CRASHED: "crashed", pb.TIME_LIMIT: "time_limit"}
+_DONE_STATES = {pb.SUCCEEDED, pb.FAILED, pb.CANCELLED_JOB}
+
+
+@dataclass
+class RolloutResults:
+    """Car 0's results of ``P`` parameter vectors x ``S`` seeds, each array ``(P, S)``."""
+
+    lap_time: np.ndarray        # first lap's time, s (nan: no lap completed)
+    progress: np.ndarray        # metres along the track
+    crashed: np.ndarray         # bool
+    finished: np.ndarray        # bool: completed the scenario's laps
+    episode_return: np.ndarray  # progress minus the crash penalty if crashed
+    time: np.ndarray            # simulated seconds of the episode
+    episodes: list[pb.EpisodeResult]  # every result, task order (params-major)
+
+
+@dataclass
+class JobInfo:
+    job_id: str
+    name: str
+    kind: str
+    state: str
+    rounds_done: int
+    rounds_total: int
+    episodes_done: int
+    progress: dict[str, Any]
+    error: str
+
+    @classmethod
+    def from_proto(cls, j: pb.JobInfo) -> "JobInfo":
+        try:
+            progress = json.loads(j.progress_json) if j.progress_json else {}
+        except json.JSONDecodeError:
+            progress = {"raw": j.progress_json}
+        return cls(job_id=j.job_id, name=j.name, kind=j.kind, state=pb.JobState.Name(j.state),
+                   rounds_done=j.rounds_done, rounds_total=j.rounds_total,
+                   episodes_done=j.episodes_done, progress=progress, error=j.error)
+
+    @property
+    def done(self) -> bool:
+        return pb.JobState.Value(self.state) in _DONE_STATES
+
+
+class Job:
+    """A job stored by the broker."""
+
+    def __init__(self, client: "Client", job_id: str) -> None:
+        self.client = client
+        self.job_id = job_id
+
+    def __repr__(self) -> str:
+        return f"Job({self.job_id!r})"
+
+    def status(self) -> JobInfo:
+        return JobInfo.from_proto(self.client.conn.request(
+            "job_status", pb.JobStatusRequest(job_id=self.job_id), "job_info"))
+
+    def cancel(self) -> JobInfo:
+        return JobInfo.from_proto(self.client.conn.request(
+            "job_cancel", pb.JobCancel(job_id=self.job_id), "job_info"))
+
+    def result(self) -> dict[str, Any]:
+        """The result document of a finished job (what ``paddock tune --json`` prints)."""
+        r = self.client.conn.request("job_result_request", pb.JobResultRequest(job_id=self.job_id),
+                                     "job_result")
+        info = JobInfo.from_proto(r.info)
+        if info.state != "SUCCEEDED":
+            raise errors.JobFailed(self.job_id, info.state, info.error)
+        return json.loads(r.result_json) if r.result_json else {}
+
+    def wait(self, progress: bool | Callable[[JobInfo], None] = False,
+             timeout: float | None = None, poll: float = 0.5) -> dict[str, Any]:
+        """Wait for the job to end and return its result; ``progress=True`` prints a line
+        per round on stderr, a callable gets every new :class:`JobInfo`."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        last = None
+        while True:
+            info = self.status()
+            key = (info.state, info.rounds_done, info.episodes_done)
+            if key != last:
+                last = key
+                if callable(progress):
+                    progress(info)
+                elif progress:
+                    print(f"job {info.job_id} {info.state} round {info.rounds_done}/"
+                          f"{info.rounds_total} {json.dumps(info.progress)}", file=sys.stderr)
+            if info.done:
+                return self.result()
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"job {self.job_id} still {info.state} after {timeout:g} s "
+                                   f"(round {info.rounds_done}/{info.rounds_total})")
+            time.sleep(poll)
+
+
+class Client:
+    """A client of a Paddock broker (``endpoint``), or of a local ``paddock serve`` that
+    it starts itself when ``endpoint`` is None and stops on :meth:`close`."""
+
+    def __init__(self, endpoint: str | None = None, timeout: float = 60.0, threads: int = 0) -> None:
+        self.server = LocalServer(threads=threads).start() if endpoint is None else None
+        self.endpoint = self.server.endpoint if self.server else str(endpoint)
+        self.conn = Connection(self.endpoint, timeout=timeout)
+
+    def close(self) -> None:
+        self.conn.close()
+        if self.server is not None:
+            self.server.stop()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def status(self) -> pb.BrokerStatus:
+        """Workers, queue depth and throughput of the broker."""
+        return self.conn.status()
+
+    def rollouts(self, policy: str, params: Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+                 seeds: Sequence[int] | np.ndarray, *, map: str = "lakeside", laps: int = 1,
+                 time_limit: float = 120.0, crash_penalty: float = 100.0,
+                 collision_mode: str = "terminate", num_beams: int = 1080,
+                 opponents: Sequence[tuple[str, Sequence[float]]] = (),
+                 timeout: float | None = None) -> RolloutResults:
+        """One episode per (parameter vector, seed) of driver ``policy`` on ``map``.
+
+        ``params``: one vector or a ``(P, D)`` array (the driver's parameters in its
+        declared order, ``paddock drivers``); ``seeds``: ``S`` seeds. Results are
+        ``(P, S)`` arrays in that order. A task the server refuses raises its error.
+        """
+        p = np.atleast_2d(np.asarray(params, dtype=np.float64))
+        if p.ndim != 2:
+            raise ValueError(f"params: shape {np.shape(params)}, expected (D,) or (P, D)")
+        s = [int(x) for x in np.asarray(seeds).reshape(-1)]
+        if not s:
+            raise ValueError("seeds: at least one seed is needed")
+        if collision_mode not in _COLLISION:
+            raise ValueError(f"collision_mode = {collision_mode!r} is not one of {sorted(_COLLISION)}")
+        ref = self.conn.map_ref(map)
+        others = [pb.AgentSpec(driver=d, params=[float(v) for v in ps]) for d, ps in opponents]
+        batch = pb.RolloutBatch()
+        for row in p:
+            batch.scenarios.append(pb.Scenario(
+                map=ref, agents=[pb.AgentSpec(driver=policy, params=row.tolist())] + others,
+                start_kind=pb.START_RANDOM, laps=int(laps), time_limit=float(time_limit),
+                collision_mode=_COLLISION[collision_mode],
+                lidar=pb.Lidar(num_beams=int(num_beams), fov=4.7, max_range=30.0, noise_std=0.01),
+                obstacles=pb.Obstacles(count=0, length=0.4, width=0.4, passage=1.0, start_clearance=4.0),
+                crash_penalty=float(crash_penalty)))
+        for i in range(len(p)):
+            for seed in s:
+                batch.tasks.append(pb.RolloutTaskSpec(scenario=i, seed=seed % 2**64))
+        wait = timeout if timeout is not None else max(self.conn.timeout, 0.05 * len(batch.tasks) * time_limit)
+        reply = self.conn.request("rollout_batch", batch, "rollout_result", timeout=wait,
+                                  on_other=lambda body, msg: None)
+        if len(reply.outcomes) != len(batch.tasks):
+            raise errors.BadMessage(1, "rollout_result.outcomes",
+                                    f"{len(reply.outcomes)} outcomes for {len(batch.tasks)} tasks")
+        episodes = []
+        for k, o in enumerate(reply.outcomes):
+            if o.WhichOneof("outcome") != "episode":
+                e = o.error
+                err = errors.from_reply(e.code, f"tasks[{k}]" + (f".{e.field}" if e.field else ""), e.message)
+                raise err
+            episodes.append(o.episode)
+        shape = (len(p), len(s))
+
+        def arr(f: Callable[[pb.EpisodeResult], Any], dtype: Any) -> np.ndarray:
+            return np.fromiter((f(e) for e in episodes), dtype=dtype, count=len(episodes)).reshape(shape)
+
+        car = lambda e: e.agents[0]  # noqa: E731
+        return RolloutResults(
+            lap_time=arr(lambda e: car(e).lap_times[0] if car(e).lap_times else np.nan, np.float64),
+            progress=arr(lambda e: car(e).progress, np.float64),
+            crashed=arr(lambda e: car(e).termination == pb.CRASHED, bool),
+            finished=arr(lambda e: car(e).termination == pb.FINISHED, bool),
+            episode_return=arr(lambda e: car(e).episode_return, np.float64),
+            time=arr(lambda e: e.time, np.float64),
+            episodes=episodes,
+        )
+
+    def submit_tune(self, driver: str = "pure-pursuit", *, map: str = "lakeside",
+                    generations: int = 60, popsize: int = 12, seeds: int = 8, holdout: int = 20,
+                    seed: int = 0, crash_penalty: float = 100.0, name: str = "") -> Job:
+        """Start a tuning job (CMA-ES over the driver's parameters) run by the broker;
+        the defaults are those of ``paddock tune``."""
+        spec = pb.TuneSpec(map=self.conn.map_ref(map), driver=driver, generations=int(generations),
+                           popsize=int(popsize), seeds=int(seeds), holdout=int(holdout),
+                           seed=int(seed) % 2**64, crash_penalty=float(crash_penalty))
+        info = self.conn.request("job_submit", pb.JobSubmit(name=name or f"tune {driver}", tune=spec),
+                                 "job_info")
+        return Job(self, info.job_id)
+
+    def jobs(self) -> list[JobInfo]:
+        """Every job the broker knows."""
+        listing = self.conn.request("job_list", pb.JobListRequest(), "job_listing")
+        return [JobInfo.from_proto(j) for j in listing.jobs]
+
+    def job(self, job_id: str) -> Job:
+        return Job(self, job_id)
+
+
+def drivers(binary: str | None = None) -> list[dict[str, Any]]:
+    """The driver registry (names, parameters with defaults and bounds) as
+    ``paddock drivers --json`` prints it."""
+    import subprocess
+
+    from .server import find_paddock
+
+    out = subprocess.run([binary or find_paddock(), "drivers", "--json"], check=True,
+                         capture_output=True, text=True, timeout=60)
+    return json.loads(out.stdout)
+
+
+def driver_defaults(name: str, binary: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(defaults, lower bounds, upper bounds) of driver ``name``'s parameters."""
+    for d in drivers(binary):
+        if d["name"] == name:
+            ps = d["params"]
+            return (np.array([p["default"] for p in ps]), np.array([p["lo"] for p in ps]),
+                    np.array([p["hi"] for p in ps]))
+    raise ValueError(f"unknown driver {name!r}")

@@ -1,0 +1,348 @@
+"""Gymnasium environments whose steps run on a Paddock worker.
+
+:class:`F110Env` is one environment (``gymnasium.make("paddock/F110-v0", ...)``);
+:class:`F110VectorEnv` is ``num_envs`` of them in ONE env session on one worker, stepped
+with one message round trip per step (``gymnasium.make_vec("paddock/F110-v0",
+num_envs=N)`` or :func:`paddock.make_vec`). Observations are dicts with the f1tenth_gym
+keys and units (metres, radians, seconds); bulk numbers are numpy views of the reply's
+packed bytes (``numpy.frombuffer``), never per-element Python loops.
+
+The learner drives car 0 with ``[steer (rad), speed (m/s)]``; further cars (opponents)
+are driven on the worker by registry drivers. ``terminated`` = car 0 crashed or finished
+its laps; ``truncated`` = the time limit. The reward is computed on the worker from
+weights (``reward={"progress": 1.0, "collision": -10.0, "lap": 0.0, "time": 0.0}``:
+per metre of progress, per collision, per lap, per second); replace it in Python with a
+wrapper (e.g. ``gymnasium.wrappers.TransformReward``) using ``info["progress"]``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from . import errors
+from ._proto import paddock_pb2 as pb
+from .server import LocalServer
+from .transport import Connection
+
+STATE_SIZE = 7  # x, y, theta, vx, vy, yaw_rate, steer per car
+OBS_KEYS = ("scans", "poses_x", "poses_y", "poses_theta", "linear_vels_x", "linear_vels_y",
+            "ang_vels_z", "collisions", "lap_times", "lap_counts")
+_COLLISION = {"terminate": pb.COLLISION_TERMINATE, "stop": pb.COLLISION_STOP,
+              "ignore": pb.COLLISION_IGNORE}
+DEFAULT_REWARD = {"progress": 1.0, "collision": -10.0, "lap": 0.0, "time": 0.0}
+
+
+@dataclass
+class Frame:
+    """One reply's numbers, as arrays over envs (views of the reply's bytes)."""
+
+    scans: np.ndarray          # (n, 1, beams) float32
+    states: np.ndarray         # (n, agents, 7) float64
+    rewards: np.ndarray        # (n,) float64
+    terminated: np.ndarray     # (n,) bool
+    truncated: np.ndarray      # (n,) bool
+    progress: np.ndarray       # (n,) float64
+    laps: np.ndarray           # (n,) uint32
+    time: np.ndarray           # (n,) float64
+    collisions: np.ndarray     # (n, agents) float64
+    lap_counts: np.ndarray     # (n, agents) int32
+    lap_times: np.ndarray      # (n, agents) float64
+
+    def obs(self) -> dict[str, np.ndarray]:
+        s = self.states
+        return {
+            "scans": self.scans,
+            "poses_x": s[:, :, 0],
+            "poses_y": s[:, :, 1],
+            "poses_theta": s[:, :, 2],
+            "linear_vels_x": s[:, :, 3],
+            "linear_vels_y": s[:, :, 4],
+            "ang_vels_z": s[:, :, 5],
+            "collisions": self.collisions,
+            "lap_times": self.lap_times,
+            "lap_counts": self.lap_counts,
+        }
+
+    def info(self) -> dict[str, np.ndarray]:
+        return {"progress": self.progress, "laps": self.laps, "time": self.time,
+                "steering_angles": self.states[:, :, 6]}
+
+
+def _frombuffer(data: bytes, dtype: str, shape: tuple[int, ...], field: str) -> np.ndarray:
+    want = math.prod(shape) * np.dtype(dtype).itemsize
+    if len(data) != want:
+        raise errors.BadMessage(1, f"env_observation.{field}",
+                                f"{field} has {len(data)} bytes, expected {want} for shape {shape}")
+    return np.frombuffer(data, dtype=dtype).reshape(shape)
+
+
+class EnvSession:
+    """An env session of ``num_envs`` copies on one worker, reached through a broker."""
+
+    def __init__(self, conn: Connection, num_envs: int, *, map: str = "lakeside",
+                 num_agents: int = 1, opponents: Sequence[str | tuple[str, Sequence[float]]] | None = None,
+                 seed: int = 0, num_beams: int = 1080, fov: float = 4.7, max_range: float = 30.0,
+                 lidar_noise: float = 0.01, laps: int = 1, time_limit: float = 120.0,
+                 collision_mode: str = "terminate", reward: Mapping[str, float] | None = None,
+                 frame_skip: int = 1, vehicle_yaml: str = "", obstacles: int = 0) -> None:
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs = {num_envs!r} must be >= 1")
+        if int(num_agents) < 1:
+            raise ValueError(f"num_agents = {num_agents!r} must be >= 1")
+        if collision_mode not in _COLLISION:
+            raise ValueError(f"collision_mode = {collision_mode!r} is not one of {sorted(_COLLISION)}")
+        weights = dict(DEFAULT_REWARD)
+        for k, v in (reward or {}).items():
+            if k not in weights:
+                raise ValueError(f"reward key {k!r} is not one of {sorted(weights)}")
+            weights[k] = float(v)
+        if opponents is None:
+            opponents = ["pure-pursuit"] * (int(num_agents) - 1)
+        elif len(opponents) != int(num_agents) - 1:
+            raise ValueError(f"opponents: {len(opponents)} given for num_agents = {num_agents} "
+                             f"(the learner drives car 0; give num_agents - 1 opponents)")
+        agents = []
+        for o in opponents:
+            driver, params = (o, ()) if isinstance(o, str) else (o[0], o[1])
+            agents.append(pb.AgentSpec(driver=driver, params=[float(p) for p in params]))
+        self.conn = conn
+        msg = pb.EnvOpen(
+            map=conn.map_ref(map), num_envs=int(num_envs), seed=int(seed) % 2**64,
+            opponents=agents, vehicle_yaml=vehicle_yaml,
+            lidar=pb.Lidar(num_beams=int(num_beams), fov=float(fov), max_range=float(max_range),
+                           noise_std=float(lidar_noise), mount_offset=0.0),
+            obstacles=pb.Obstacles(count=int(obstacles), length=0.4, width=0.4, passage=1.0,
+                                   start_clearance=4.0),
+            laps=int(laps), time_limit=float(time_limit), collision_mode=_COLLISION[collision_mode],
+            reward=pb.RewardWeights(**weights), frame_skip=int(frame_skip))
+        opened = conn.request("env_open", msg, "env_opened", timeout=max(conn.timeout, 60.0))
+        self.session_id = opened.session_id
+        self.num_envs = opened.num_envs
+        self.num_agents = opened.num_agents
+        self.num_beams = opened.num_beams
+        self.action_low = np.array(opened.action_low, dtype=np.float32)
+        self.action_high = np.array(opened.action_high, dtype=np.float32)
+        self.dt = opened.dt
+        self.max_range = float(max_range)
+        self.closed = False
+
+    def _frame(self, o: pb.EnvObservation) -> Frame:
+        n, a, b = self.num_envs, self.num_agents, self.num_beams
+        return Frame(
+            scans=_frombuffer(o.scans, "<f4", (n, 1, b), "scans"),
+            states=_frombuffer(o.states, "<f8", (n, a, STATE_SIZE), "states"),
+            rewards=_frombuffer(o.rewards, "<f8", (n,), "rewards"),
+            terminated=_frombuffer(o.terminated, "u1", (n,), "terminated").astype(bool),
+            truncated=_frombuffer(o.truncated, "u1", (n,), "truncated").astype(bool),
+            progress=_frombuffer(o.progress, "<f8", (n,), "progress"),
+            laps=_frombuffer(o.laps, "<u4", (n,), "laps"),
+            time=_frombuffer(o.time, "<f8", (n,), "time"),
+            collisions=_frombuffer(o.agent_collisions, "u1", (n, a), "agent_collisions").astype(np.float64),
+            lap_counts=_frombuffer(o.agent_lap_counts, "<u4", (n, a), "agent_lap_counts").astype(np.int32),
+            lap_times=_frombuffer(o.agent_lap_times, "<f8", (n, a), "agent_lap_times"),
+        )
+
+    def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,
+              poses: np.ndarray | None = None) -> Frame:
+        msg = pb.EnvReset(session_id=self.session_id,
+                          seeds=[int(s) % 2**64 for s in (seeds or [])],
+                          envs=[int(i) for i in (envs if envs is not None else [])])
+        if poses is not None:
+            p = np.ascontiguousarray(poses, dtype="<f8")
+            count = len(envs) if envs is not None else self.num_envs
+            if p.size != count * self.num_agents * 3:
+                raise ValueError(f"poses: shape {p.shape} does not hold [x, y, theta] for "
+                                 f"{count} envs x {self.num_agents} cars")
+            msg.poses = p.tobytes()
+        return self._frame(self.conn.request("env_reset", msg, "env_observation"))
+
+    def step(self, actions: np.ndarray, reset_envs: Sequence[int] = ()) -> Frame:
+        a = np.ascontiguousarray(actions, dtype="<f4")
+        msg = pb.EnvStep(session_id=self.session_id, actions=a.tobytes(),
+                         reset_envs=[int(i) for i in reset_envs])
+        return self._frame(self.conn.request("env_step", msg, "env_observation"))
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self.conn.request("env_close", pb.EnvClose(session_id=self.session_id), "env_closed",
+                              timeout=min(self.conn.timeout, 5.0))
+        except errors.PaddockError:
+            pass  # the session is gone with its worker or broker: nothing left to close
+
+    def spaces(self) -> tuple[spaces.Dict, spaces.Box]:
+        """One env's observation and action spaces."""
+        a, b = self.num_agents, self.num_beams
+        inf = np.inf
+
+        def box(shape: tuple[int, ...], low: float = -inf, high: float = inf,
+                dtype: Any = np.float64) -> spaces.Box:
+            return spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
+
+        obs = spaces.Dict({
+            "scans": box((1, b), 0.0, inf, np.float32),
+            "poses_x": box((a,)), "poses_y": box((a,)), "poses_theta": box((a,)),
+            "linear_vels_x": box((a,)), "linear_vels_y": box((a,)), "ang_vels_z": box((a,)),
+            "collisions": box((a,), 0.0, 1.0),
+            "lap_times": box((a,), 0.0, inf),
+            "lap_counts": box((a,), 0, 2**31 - 1, np.int32),
+        })
+        act = spaces.Box(low=self.action_low, high=self.action_high, dtype=np.float32)
+        return obs, act
+
+
+class _Owned:
+    """The connection (and local server) an env opened for itself."""
+
+    def __init__(self, endpoint: str | None, timeout: float, threads: int) -> None:
+        self.server = LocalServer(threads=threads).start() if endpoint is None else None
+        self.conn = Connection(self.server.endpoint if self.server else endpoint, timeout=timeout)
+
+    def close(self) -> None:
+        self.conn.close()
+        if self.server is not None:
+            self.server.stop()
+
+
+class F110Env(gym.Env):
+    """One F1TENTH environment stepped on a Paddock worker.
+
+    ``endpoint``: a broker's client endpoint (``tcp://HOST:PORT``), or None to start a
+    local ``paddock serve`` that :meth:`close` stops. Other arguments: see
+    :class:`EnvSession`. ``reset(options={"poses": [[x, y, theta], ...]})`` places the cars.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, endpoint: str | None = None, *, timeout: float = 30.0, threads: int = 0,
+                 **kwargs: Any) -> None:
+        self._owned = _Owned(endpoint, timeout, threads)
+        try:
+            self.session = EnvSession(self._owned.conn, 1, **kwargs)
+        except BaseException:
+            self._owned.close()
+            raise
+        self.observation_space, self.action_space = self.session.spaces()
+        self._needs_reset = True
+
+    def _single(self, f: Frame) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        obs = {k: v[0] for k, v in f.obs().items()}
+        info = {"progress": float(f.progress[0]), "laps": int(f.laps[0]), "time": float(f.time[0]),
+                "steering_angles": f.states[0, :, 6]}
+        return obs, info
+
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        poses = None if not options or options.get("poses") is None else np.asarray(options["poses"])
+        f = self.session.reset(seeds=[seed] if seed is not None else None, poses=poses)
+        self._needs_reset = False
+        return self._single(f)
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = np.asarray(action, dtype=np.float32)
+        if a.size != 2:
+            raise ValueError(f"action must be [steer, speed] (shape (2,)), got shape {a.shape}")
+        f = self.session.step(a.reshape(1, 2))
+        obs, info = self._single(f)
+        return obs, float(f.rewards[0]), bool(f.terminated[0]), bool(f.truncated[0]), info
+
+    def close(self) -> None:
+        if getattr(self, "session", None) is not None:
+            self.session.close()
+        if getattr(self, "_owned", None) is not None:
+            self._owned.close()
+        super().close()
+
+
+class F110VectorEnv(VectorEnv):
+    """``num_envs`` F1TENTH environments in one env session, one round trip per step.
+
+    Autoreset is NEXT_STEP (declared in ``metadata["autoreset_mode"]``): the step after
+    an env terminated or truncated resets it (reward 0, flags false) instead of stepping
+    it, in the same round trip. ``reset(seed=s)`` seeds env i with ``s + i``.
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int, endpoint: str | None = None, *, timeout: float = 30.0,
+                 threads: int = 0, **kwargs: Any) -> None:
+        self._owned = _Owned(endpoint, timeout, threads)
+        try:
+            self.session = EnvSession(self._owned.conn, num_envs, **kwargs)
+        except BaseException:
+            self._owned.close()
+            raise
+        self.num_envs = int(num_envs)
+        self.single_observation_space, self.single_action_space = self.session.spaces()
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._needs_reset = True
+
+    def reset(self, *, seed: int | Sequence[int] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        if seed is None:
+            seeds = None
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = [int(s) for s in seed]
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed: {len(seeds)} seeds for {self.num_envs} envs")
+        if seed is not None:
+            self._np_random, self._np_random_seed = gym.utils.seeding.np_random(
+                seeds[0] if seeds else None)
+        options = options or {}
+        envs = None
+        if options.get("reset_mask") is not None:
+            mask = np.asarray(options["reset_mask"], dtype=bool)
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"reset_mask: shape {mask.shape}, expected ({self.num_envs},)")
+            envs = [int(i) for i in np.flatnonzero(mask)]
+            if seeds is not None:
+                seeds = [seeds[i] for i in envs]
+        poses = None if options.get("poses") is None else np.asarray(options["poses"])
+        f = self.session.reset(seeds=seeds, envs=envs, poses=poses)
+        if envs is None:
+            self._autoreset[:] = False
+        else:
+            self._autoreset[envs] = False
+        self._needs_reset = False
+        return f.obs(), f.info()
+
+    def step(self, actions: Any) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
+                                          np.ndarray, dict[str, Any]]:
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = np.asarray(actions, dtype=np.float32)
+        if a.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2) "
+                             f"(num_envs x [steer, speed]), got {a.shape}")
+        f = self.session.step(a, reset_envs=np.flatnonzero(self._autoreset).tolist())
+        self._autoreset = f.terminated | f.truncated
+        return f.obs(), f.rewards, f.terminated, f.truncated, f.info()
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if getattr(self, "session", None) is not None:
+            self.session.close()
+        if getattr(self, "_owned", None) is not None:
+            self._owned.close()
+
+
+def make_vec(num_envs: int, endpoint: str | None = None, **kwargs: Any) -> F110VectorEnv:
+    """``num_envs`` environments in one session (see :class:`F110VectorEnv`)."""
+    return F110VectorEnv(num_envs, endpoint, **kwargs)

@@ -1,0 +1,128 @@
+"""A local `paddock serve` (broker and workers in one process on loopback) that a
+learner on one machine connects to; started and stopped by the env or the tests."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from . import errors
+from .transport import Connection
+
+
+def find_paddock() -> str:
+    """The `paddock` binary: ``$PADDOCK_BIN``, then PATH, then the source tree's cargo
+    target folder (``$CARGO_TARGET_DIR`` or ``target/``, release before debug)."""
+    env = os.environ.get("PADDOCK_BIN")
+    if env:
+        return env
+    found = shutil.which("paddock")
+    if found:
+        return found
+    repo = Path(__file__).resolve().parents[2]
+    roots = [Path(os.environ["CARGO_TARGET_DIR"])] if os.environ.get("CARGO_TARGET_DIR") else []
+    roots.append(repo / "target")
+    for root in roots:
+        for profile in ("release", "debug"):
+            p = root / profile / "paddock"
+            if p.is_file() and os.access(p, os.X_OK):
+                return str(p)
+    raise errors.ServerStartError(
+        "no `paddock` binary: set PADDOCK_BIN, put it on PATH, or build it with "
+        "`cargo build --release -p paddock`"
+    )
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class LocalServer:
+    """`paddock serve` on a free loopback port; ``endpoint`` is where clients connect."""
+
+    def __init__(self, threads: int = 0, binary: str | None = None,
+                 start_timeout: float = 60.0, extra_args: list[str] | None = None) -> None:
+        self.binary = binary or find_paddock()
+        self.threads = threads
+        self.start_timeout = start_timeout
+        self.extra_args = list(extra_args or [])
+        self.process: subprocess.Popen[bytes] | None = None
+        self.endpoint = ""
+        # a file, not a pipe: a chatty server must never block on a full pipe
+        self._log = tempfile.TemporaryFile()
+
+    def start(self) -> "LocalServer":
+        last = ""
+        for _ in range(3):  # a port taken between probing and binding: try another
+            port = free_port()
+            self.endpoint = f"tcp://127.0.0.1:{port}"
+            args = [self.binary, "serve", "--bind", self.endpoint]
+            if self.threads:
+                args += ["--threads", str(self.threads)]
+            self._log.seek(0)
+            self._log.truncate()
+            self.process = subprocess.Popen(args + self.extra_args, stdout=subprocess.DEVNULL,
+                                            stderr=self._log)
+            try:
+                self._wait_ready()
+                return self
+            except errors.ServerStartError as e:
+                last = str(e)
+                self.stop()
+        raise errors.ServerStartError(last)
+
+    def _wait_ready(self) -> None:
+        deadline = time.monotonic() + self.start_timeout
+        with Connection(self.endpoint, timeout=1.0) as c:
+            while time.monotonic() < deadline:
+                assert self.process is not None
+                if self.process.poll() is not None:
+                    err = self.log()
+                    raise errors.ServerStartError(
+                        f"`paddock serve --bind {self.endpoint}` exited with {self.process.returncode}: {err.strip()[-2000:]}"
+                    )
+                try:
+                    st = c.status(timeout=1.0)
+                    if len(st.workers) > 0:
+                        return
+                except errors.BrokerUnavailable:
+                    pass
+                time.sleep(0.1)
+        raise errors.ServerStartError(
+            f"`paddock serve` at {self.endpoint} had no worker after {self.start_timeout:g} s"
+        )
+
+    def stop(self) -> None:
+        p = self.process
+        self.process = None
+        if p is None or p.poll() is not None:
+            return
+        # SIGINT: serve stops its workers and removes its temporary state directory
+        p.send_signal(signal.SIGINT)
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+    def log(self) -> str:
+        """What the server wrote to stderr so far."""
+        self._log.seek(0)
+        return self._log.read().decode(errors="replace")
+
+    def __enter__(self) -> "LocalServer":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def __del__(self) -> None:
+        self.stop()

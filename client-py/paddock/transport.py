@@ -1,0 +1,132 @@
+"""One DEALER connection to a broker: request/reply with ids, timeouts, map uploads.
+
+Every message is one ``paddock.v1.Envelope``. A request carries a fresh request id; the
+reply with that id is awaited for at most ``timeout`` seconds (never forever), replies to
+older requests (answered after their caller gave up) are dropped, and an error reply is
+raised as the matching :mod:`paddock.errors` exception.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from collections.abc import Callable, Iterable
+
+import zmq
+from google.protobuf.message import DecodeError, Message
+
+from . import errors
+from ._proto import paddock_pb2 as pb
+from .maps import MapBundle, read_bundle
+
+PROTOCOL_VERSION = 1
+DEFAULT_TIMEOUT = 30.0
+
+
+class Connection:
+    """A DEALER socket connected to a broker's client endpoint (not thread-safe: one
+    request at a time; a lock serialises callers)."""
+
+    def __init__(self, endpoint: str, timeout: float = DEFAULT_TIMEOUT,
+                 context: zmq.Context | None = None) -> None:
+        if not isinstance(endpoint, str) or "://" not in endpoint:
+            raise ValueError(f"endpoint {endpoint!r} is not a ZeroMQ endpoint like tcp://HOST:PORT")
+        if not timeout > 0:
+            raise ValueError(f"timeout {timeout!r} must be > 0 seconds")
+        self.endpoint = endpoint
+        self.timeout = float(timeout)
+        self._ctx = context or zmq.Context.instance()
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+        self._maps: dict[str, MapBundle] = {}
+        self._sock: zmq.Socket | None = None
+        self._connect()
+
+    def _connect(self) -> None:
+        s = self._ctx.socket(zmq.DEALER)
+        s.setsockopt(zmq.LINGER, 0)
+        s.setsockopt(zmq.SNDTIMEO, int(self.timeout * 1000))
+        s.connect(self.endpoint)
+        self._sock = s
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close(linger=0)
+            self._sock = None
+
+    def __enter__(self) -> "Connection":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def send(self, field: str, msg: Message) -> int:
+        """Send one request; return its id."""
+        if self._sock is None:
+            raise errors.PaddockError(f"connection to {self.endpoint} is closed")
+        rid = next(self._ids)
+        env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid)
+        getattr(env, field).CopyFrom(msg)
+        try:
+            self._sock.send(env.SerializeToString())  # small: a copy is cheaper than zero-copy
+        except zmq.Again as e:
+            raise errors.BrokerUnavailable(self.endpoint, self.timeout, field) from e
+        return rid
+
+    def receive(self, rid: int, what: str, timeout: float | None = None) -> tuple[str, Message]:
+        """The next reply to request ``rid`` as (body name, message)."""
+        assert self._sock is not None
+        limit = self.timeout if timeout is None else timeout
+        deadline = time.monotonic() + limit
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not self._sock.poll(max(1, int(left * 1000)), zmq.POLLIN):
+                # a late reply must not be read as the answer to a later request: start over
+                self.close()
+                self._connect()
+                raise errors.BrokerUnavailable(self.endpoint, limit, what)
+            frame = self._sock.recv()
+            env = pb.Envelope()
+            try:
+                env.ParseFromString(frame)
+            except DecodeError:
+                continue
+            if env.request_id != rid:
+                continue  # the reply to a request its caller gave up on
+            body = env.WhichOneof("body")
+            if body is None:
+                raise errors.BadMessage(1, "body", f"reply to {what} has no body")
+            msg = getattr(env, body)
+            if body == "error":
+                raise errors.from_reply(msg.code, msg.field, msg.message)
+            return body, msg
+
+    def request(self, field: str, msg: Message, expect: str | Iterable[str],
+                timeout: float | None = None,
+                on_other: Callable[[str, Message], None] | None = None) -> Message:
+        """Send ``msg`` as body ``field`` and return the reply whose body is ``expect``;
+        other bodies with the same id (progress) go to ``on_other``."""
+        wanted = {expect} if isinstance(expect, str) else set(expect)
+        with self._lock:
+            rid = self.send(field, msg)
+            while True:
+                body, reply = self.receive(rid, field, timeout)
+                if body in wanted:
+                    return reply
+                if on_other is not None:
+                    on_other(body, reply)
+                    continue
+                raise errors.UnknownType(3, "body", f"unexpected reply {body} to {field}")
+
+    def map_ref(self, map: str) -> pb.MapRef:
+        """The reference of map ``map``, uploading it to the broker once per connection."""
+        b = self._maps.get(map)
+        if b is None:
+            b = read_bundle(map)
+            self.request("put_map", pb.PutMap(bundle=b.to_proto()), "map_stored")
+            self._maps[map] = b
+        return b.ref()
+
+    def status(self, timeout: float | None = None) -> pb.BrokerStatus:
+        return self.request("status_request", pb.StatusRequest(), "broker_status", timeout)

@@ -1,0 +1,47 @@
+"""Batch rollouts and jobs through the broker."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import paddock
+from paddock import Client, errors
+
+
+def test_rollouts_in_task_order_and_deterministic(client: Client) -> None:
+    defaults, lo, hi = paddock.driver_defaults("pure-pursuit")
+    slow = defaults.copy()
+    slow[2] = lo[2]  # lowest lateral acceleration: a slower lap
+    params = np.stack([defaults, slow])
+    r = client.rollouts("pure-pursuit", params, seeds=[1, 2, 3], time_limit=60.0)
+    assert r.lap_time.shape == (2, 3)
+    assert r.finished.all() and not r.crashed.any()
+    assert (r.lap_time[1] > r.lap_time[0]).all(), r.lap_time
+    assert [e.seed for e in r.episodes] == [1, 2, 3, 1, 2, 3]
+    again = client.rollouts("pure-pursuit", params[::-1], seeds=[1, 2, 3], time_limit=60.0)
+    np.testing.assert_array_equal(again.lap_time, r.lap_time[::-1])
+    np.testing.assert_array_equal(again.progress, r.progress[::-1])
+
+
+def test_rollout_errors_name_the_field(client: Client) -> None:
+    defaults, _, hi = paddock.driver_defaults("pure-pursuit")
+    bad = defaults.copy()
+    bad[1] = hi[1] * 10
+    with pytest.raises(errors.InvalidArgument) as e:
+        client.rollouts("pure-pursuit", bad, seeds=[1])
+    assert "params" in e.value.field
+    with pytest.raises(errors.InvalidArgument) as e:
+        client.rollouts("no-such-driver", [1.0], seeds=[1])
+    assert "driver" in e.value.field or "no-such-driver" in e.value.message
+    with pytest.raises(ValueError):
+        client.rollouts("pure-pursuit", defaults, seeds=[])
+
+
+def test_tune_job_runs_to_a_result(client: Client) -> None:
+    job = client.submit_tune("pure-pursuit", generations=2, popsize=4, seeds=2, holdout=2, seed=5)
+    seen = []
+    result = job.wait(progress=seen.append, timeout=120)
+    assert isinstance(result, dict) and result
+    assert seen and seen[-1].state == "SUCCEEDED"
+    assert any(j.job_id == job.job_id for j in client.jobs())

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# The Python client (client-py): a venv with pinned dependencies, the package installed
+# in editable mode, and its tests against a real `paddock serve` that the fixtures start
+# on a free loopback port and stop.
+#
+#   scripts/python.sh              # build paddock (release), set up the venv, run pytest
+#   scripts/python.sh -k env -x    # extra arguments go to pytest
+#
+# PADDOCK_VENV overrides the venv (default ~/.cache/paddock/venv); CARGO_TARGET_DIR is
+# honoured; PADDOCK_BIN skips the cargo build and uses that binary.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
+PY="${PYTHON:-python3}"
+PINS=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0)
+
+if [ ! -x "$VENV/bin/python" ]; then
+    echo "python.sh: creating the venv $VENV"
+    "$PY" -m venv "$VENV"
+fi
+# install only when the pins or the package metadata changed
+stamp="$VENV/.paddock-stamp"
+want="$(printf '%s\n' "${PINS[@]}" | cat - client-py/pyproject.toml | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "${PINS[@]}"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e client-py
+    echo "$want" > "$stamp"
+fi
+
+if [ -z "${PADDOCK_BIN:-}" ]; then
+    cargo build --release -q -p paddock
+    PADDOCK_BIN="${CARGO_TARGET_DIR:-target}/release/paddock"
+    PADDOCK_BIN="$(cd "$(dirname "$PADDOCK_BIN")" && pwd)/paddock"
+fi
+export PADDOCK_BIN
+echo "python.sh: testing client-py against $PADDOCK_BIN serve"
+cd client-py
+exec "$VENV/bin/python" -m pytest -q tests "$@"

@@ -1,0 +1,335 @@
+//! The pipeline: locate, test candidates, select greedily, refit, measure held out.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use paddock_sim::params::VehicleParams;
+use rayon::prelude::*;
+use tracing::info;
+
+use crate::SysidError;
+use crate::effects::{ALL, EffectKind};
+use crate::fit::{Evidence, FitContext, Fitted, budget, build_params};
+use crate::locate::{Located, locate};
+use crate::recording::Recording;
+use crate::replay::{Replay, Residuals};
+
+/// Knobs of the analysis.
+#[derive(Debug, Clone)]
+pub struct AnalysisOptions {
+    /// Replay window [s].
+    pub window_s: f64,
+    /// Cross-validation folds (contiguous time blocks).
+    pub folds: usize,
+    /// Held-out improvement an effect must beat, per parameter (0.01 = 1 %).
+    pub margin_per_param: f64,
+    /// Most effects kept.
+    pub max_effects: usize,
+    pub candidates: Vec<EffectKind>,
+    pub seed: u64,
+    /// Scales the optimiser budgets (1 = default).
+    pub effort: f64,
+}
+
+impl Default for AnalysisOptions {
+    fn default() -> Self {
+        Self {
+            window_s: 1.0,
+            folds: 3,
+            margin_per_param: 0.03,
+            max_effects: 4,
+            candidates: ALL.to_vec(),
+            seed: 1,
+            effort: 1.0,
+        }
+    }
+}
+
+impl AnalysisOptions {
+    pub fn validate(&self) -> Result<(), SysidError> {
+        let bad = |field: &str, value: String, req: &str| SysidError::Option {
+            field: field.into(),
+            value,
+            requirement: req.into(),
+        };
+        if !(self.window_s.is_finite() && (0.2..=5.0).contains(&self.window_s)) {
+            return Err(bad("window_s", self.window_s.to_string(), "in [0.2, 5] s"));
+        }
+        if !(2..=10).contains(&self.folds) {
+            return Err(bad("folds", self.folds.to_string(), "in [2, 10]"));
+        }
+        if !(self.margin_per_param.is_finite() && self.margin_per_param >= 0.0) {
+            return Err(bad(
+                "margin_per_param",
+                self.margin_per_param.to_string(),
+                ">= 0",
+            ));
+        }
+        if !(self.effort.is_finite() && self.effort > 0.0) {
+            return Err(bad("effort", self.effort.to_string(), "> 0"));
+        }
+        Ok(())
+    }
+}
+
+/// Progress of the analysis: `done` of `total` units, and what is running.
+#[derive(Debug, Clone)]
+pub struct Stage {
+    pub done: usize,
+    pub total: usize,
+    pub message: String,
+}
+
+/// One candidate's outcome.
+#[derive(Debug, Clone)]
+pub struct CandidateResult {
+    pub evidence: Evidence,
+    /// Greedy round of the last test (1-based).
+    pub round: usize,
+    /// Kept in the model (significant when tested and added).
+    pub selected: bool,
+    /// Final parameters (after the joint refit) when selected.
+    pub values: Vec<f64>,
+}
+
+/// Everything an analysis produced.
+#[derive(Debug, Clone)]
+pub struct Analysis {
+    pub nominal: VehicleParams,
+    pub fitted: VehicleParams,
+    pub effects: Vec<Fitted>,
+    pub candidates: Vec<CandidateResult>,
+    pub located: Located,
+    /// The same grouping of the fitted model's residuals.
+    pub located_fitted: Located,
+    pub nominal_residuals: Residuals,
+    pub fitted_residuals: Residuals,
+    pub rmse_before: [f64; 6],
+    pub rmse_after: [f64; 6],
+    pub rmse_fitted_in_sample: [f64; 6],
+    pub noise_floor: [f64; 6],
+    pub folds: usize,
+    pub window_s: f64,
+    pub seconds: f64,
+}
+
+/// Run the analysis of `rec` against the nominal vehicle `nominal`.
+pub fn analyze(
+    rec: &Recording,
+    nominal: &VehicleParams,
+    opts: &AnalysisOptions,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Analysis, SysidError> {
+    let start = Instant::now();
+    opts.validate()?;
+    rec.check()?;
+    nominal.validate()?;
+    let replay = Replay::new(rec, opts.window_s);
+    if replay.n_windows() < 2 * opts.folds {
+        return Err(SysidError::TooShort {
+            samples: rec.states.len(),
+            duration_s: rec.duration(),
+            min_samples: crate::recording::MIN_SAMPLES,
+            min_duration_s: 2.0 * opts.folds as f64 * opts.window_s,
+        });
+    }
+    let cands: Vec<EffectKind> = opts.candidates.clone();
+    let rounds = opts.max_effects.min(cands.len());
+    // locate, two steps per greedy round, the held-out measurement
+    let total = 2 + 2 * rounds;
+    let mut done = 0usize;
+    let tick = |done: &mut usize, msg: String| {
+        *done += 1;
+        progress(Stage {
+            done: *done,
+            total,
+            message: msg,
+        });
+    };
+
+    let nominal_residuals = replay.residuals(nominal);
+    let located = locate(rec, &replay, &nominal_residuals);
+    info!(
+        windows = replay.n_windows(),
+        samples = replay.n_samples(),
+        mismatches = located.mismatch.len(),
+        "located the residual"
+    );
+    tick(&mut done, "located the residual".into());
+
+    let n_w = replay.n_windows();
+    let extent = {
+        let mut e = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+        for s in &rec.states {
+            e[0] = e[0].min(s.x - 1.0);
+            e[1] = e[1].min(s.y - 1.0);
+            e[2] = e[2].max(s.x + 1.0);
+            e[3] = e[3].max(s.y + 1.0);
+        }
+        e
+    };
+    let ctx = FitContext {
+        replay: &replay,
+        nominal,
+        fold_of_window: (0..n_w).map(|w| w * opts.folds / n_w).collect(),
+        folds: opts.folds,
+        extent,
+        patch_seeds: located.patch_seeds.clone(),
+        seed: opts.seed,
+        effort: opts.effort,
+    };
+
+    let mut chosen: Vec<Fitted> = Vec::new();
+    let mut results: BTreeMap<EffectKind, CandidateResult> = BTreeMap::new();
+    for round in 1..=rounds {
+        let base_params = build_params(nominal, &chosen);
+        let base_heldout = ctx.fold_costs(&base_params);
+        let remaining: Vec<EffectKind> = cands
+            .iter()
+            .copied()
+            .filter(|k| !chosen.iter().any(|c| c.kind == *k))
+            .collect();
+        if remaining.is_empty() {
+            break;
+        }
+        let evid: Vec<Result<Evidence, SysidError>> = remaining
+            .par_iter()
+            .map(|k| ctx.evidence(&chosen, &base_heldout, *k, opts.margin_per_param))
+            .collect();
+        let mut best: Option<Evidence> = None;
+        for e in evid {
+            let e = e?;
+            info!(
+                round,
+                effect = e.kind.name(),
+                gain = e.gain,
+                folds_improved = e.folds_improved,
+                significant = e.significant,
+                values = ?e.values,
+                "candidate"
+            );
+            if e.significant && best.as_ref().is_none_or(|b| e.gain > b.gain) {
+                best = Some(e.clone());
+            }
+            results.insert(
+                e.kind,
+                CandidateResult {
+                    values: e.values.clone(),
+                    evidence: e,
+                    round,
+                    selected: false,
+                },
+            );
+        }
+        tick(
+            &mut done,
+            format!("round {round}: tested {} effects", remaining.len()),
+        );
+        let Some(best) = best else { break };
+        info!(round, effect = best.kind.name(), "kept");
+        let mut kept = best.fitted.clone();
+        if kept.kind == EffectKind::SteeringDelay {
+            // whole steps: found by exhaustive search, held in the joint refits, which
+            // a step function would only confuse
+            kept.pinned = vec![0];
+        }
+        chosen.push(kept);
+        if let Some(r) = results.get_mut(&best.kind) {
+            r.selected = true;
+        }
+        if chosen.len() > 1 {
+            let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum();
+            let (refit, _) = ctx.fit(&[], &chosen, &|_| true, evals)?;
+            chosen = refit;
+        }
+        tick(
+            &mut done,
+            format!("round {round}: kept {}", best.kind.name()),
+        );
+    }
+    for c in chosen.iter_mut() {
+        if c.kind == EffectKind::FrictionPatch {
+            tighten_patch(rec, &mut c.values);
+        }
+    }
+    for c in &chosen {
+        if let Some(r) = results.get_mut(&c.kind) {
+            r.values = c.values.clone();
+        }
+    }
+
+    // held-out residuals of the final model: each block predicted by a fit without it
+    let rmse_before = nominal_residuals.rmse(|_| true);
+    let rmse_after = if chosen.is_empty() {
+        rmse_before
+    } else {
+        let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum::<u64>() / 2;
+        let per_fold: Vec<Result<([f64; 6], usize), SysidError>> = (0..opts.folds)
+            .into_par_iter()
+            .map(|f| {
+                let fold_of = &ctx.fold_of_window;
+                let (fit, _) = ctx.fit(&[], &chosen, &|w| fold_of[w] != f, evals)?;
+                let res = replay.residuals(&build_params(nominal, &fit));
+                let n = res.window.iter().filter(|w| fold_of[**w] == f).count();
+                let r = res.rmse(|w| fold_of[w] == f);
+                Ok((r, n))
+            })
+            .collect();
+        let mut sq = [0.0; 6];
+        let mut n_all = 0usize;
+        for r in per_fold {
+            let (r, n) = r?;
+            for c in 0..6 {
+                sq[c] += r[c] * r[c] * n as f64;
+            }
+            n_all += n;
+        }
+        std::array::from_fn(|c| (sq[c] / n_all.max(1) as f64).sqrt())
+    };
+    tick(&mut done, "measured the held-out fit".into());
+    let fitted = build_params(nominal, &chosen);
+    fitted.validate()?;
+    let fitted_residuals = replay.residuals(&fitted);
+    let rmse_fitted_in_sample = fitted_residuals.rmse(|_| true);
+    let located_fitted = locate(rec, &replay, &fitted_residuals);
+    let mut candidates: Vec<CandidateResult> = results.into_values().collect();
+    candidates.sort_by_key(|c| (!c.selected, c.evidence.kind));
+    Ok(Analysis {
+        nominal: nominal.clone(),
+        fitted,
+        effects: chosen,
+        candidates,
+        located,
+        located_fitted,
+        nominal_residuals,
+        fitted_residuals,
+        rmse_before,
+        rmse_after,
+        rmse_fitted_in_sample,
+        noise_floor: replay.sigma,
+        folds: opts.folds,
+        window_s: replay.window_s,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Shrink a friction patch to the recorded positions inside it (plus a small margin,
+/// never past the fitted box): the fit cannot see beyond where the car drove, so the
+/// smallest box with the same evidence is the honest answer.
+fn tighten_patch(rec: &Recording, v: &mut [f64]) {
+    const MARGIN_M: f64 = 0.3;
+    let [xmin, ymin, xmax, ymax] = [v[1], v[2], v[3], v[4]];
+    let mut b = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+    for s in &rec.states {
+        if s.x >= xmin && s.x <= xmax && s.y >= ymin && s.y <= ymax {
+            b = [b[0].min(s.x), b[1].min(s.y), b[2].max(s.x), b[3].max(s.y)];
+        }
+    }
+    if b[0] > b[2] {
+        return;
+    }
+    v[1] = (b[0] - MARGIN_M).max(xmin);
+    v[2] = (b[1] - MARGIN_M).max(ymin);
+    v[3] = (b[2] + MARGIN_M).min(xmax);
+    v[4] = (b[3] + MARGIN_M).min(ymax);
+}

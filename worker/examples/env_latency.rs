@@ -1,0 +1,148 @@
+//! Env-step round trips through a broker and a worker on loopback: p50 / p99 latency
+//! of one `EnvStep` -> `EnvObservation` for a session of 1 env and of 64 envs, with the
+//! full 1080-beam scan and with a 1-beam scan (which leaves mostly the transport).
+//!
+//! ```text
+//! paddock serve --bind tcp://127.0.0.1:5555 &
+//! cargo run --release -p paddock-worker --example env_latency -- tcp://127.0.0.1:5555 [steps]
+//! ```
+
+use std::time::{Duration, Instant};
+
+use paddock_proto::{Body, EnvOpen, EnvReset, EnvStep, Lidar, PutMap, decode, encode, pack_f32};
+use paddock_sim::track::Circuit;
+
+fn request(sock: &zmq::Socket, id: &mut u64, body: Body) -> Result<Body, String> {
+    *id += 1;
+    sock.send(encode(*id, body), 0)
+        .map_err(|e| format!("send: {e}"))?;
+    loop {
+        let frame = sock
+            .recv_bytes(0)
+            .map_err(|e| format!("no reply within the timeout: {e}"))?;
+        let (rid, body) = decode(&frame).map_err(|(_, e)| e.to_string())?;
+        if rid != *id {
+            continue;
+        }
+        return match body {
+            Body::Error(e) => Err(format!(
+                "{} [{}]: {}",
+                paddock_proto::code_name(e.code),
+                e.field,
+                e.message
+            )),
+            b => Ok(b),
+        };
+    }
+}
+
+fn percentile(sorted: &[Duration], p: f64) -> f64 {
+    let k = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[k].as_secs_f64() * 1e6
+}
+
+fn main() -> Result<(), String> {
+    let mut args = std::env::args().skip(1);
+    let endpoint = args.next().ok_or(
+        "usage: env_latency ENDPOINT [steps] (e.g. tcp://127.0.0.1:5555 from `paddock serve`)",
+    )?;
+    let steps: usize = match args.next() {
+        Some(s) => s.parse().map_err(|e| format!("steps = {s:?}: {e}"))?,
+        None => 2000,
+    };
+    let ctx = zmq::Context::new();
+    let sock = ctx.socket(zmq::DEALER).map_err(|e| e.to_string())?;
+    sock.set_linger(0).map_err(|e| e.to_string())?;
+    sock.set_rcvtimeo(30_000).map_err(|e| e.to_string())?;
+    sock.connect(&endpoint)
+        .map_err(|e| format!("{endpoint}: {e}"))?;
+    let mut id = 0u64;
+    let dir = Circuit::resolve("lakeside", &[])
+        .map_err(|e| e.to_string())?
+        .dir
+        .clone();
+    let bundle = paddock_proto::read_map_dir(&dir, "lakeside").map_err(|e| e.to_string())?;
+    let map = paddock_proto::convert::map_ref(&bundle);
+    request(
+        &sock,
+        &mut id,
+        Body::PutMap(PutMap {
+            bundle: Some(bundle),
+        }),
+    )?;
+    println!("| envs | beams | steps | p50 µs | p99 µs | mean µs | env-steps/s |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|");
+    for (num_envs, beams) in [(1u32, 1080u32), (64, 1080), (1, 1), (64, 1)] {
+        let opened = request(
+            &sock,
+            &mut id,
+            Body::EnvOpen(EnvOpen {
+                map: Some(map.clone()),
+                num_envs,
+                seed: 1,
+                lidar: Some(Lidar {
+                    num_beams: beams,
+                    fov: 4.7,
+                    max_range: 30.0,
+                    noise_std: 0.01,
+                    mount_offset: 0.0,
+                }),
+                laps: 100,
+                time_limit: 36_000.0,
+                frame_skip: 1,
+                ..Default::default()
+            }),
+        )?;
+        let Body::EnvOpened(o) = opened else {
+            return Err(format!(
+                "env_open answered with {}",
+                paddock_proto::body_name(&opened)
+            ));
+        };
+        let sid = o.session_id;
+        request(
+            &sock,
+            &mut id,
+            Body::EnvReset(EnvReset {
+                session_id: sid,
+                ..Default::default()
+            }),
+        )?;
+        // standing cars: every step still runs the dynamics and the scan, and none crashes
+        let actions = pack_f32(
+            &(0..num_envs)
+                .flat_map(|_| [0.0f32, 0.0])
+                .collect::<Vec<_>>(),
+        );
+        let mut times = Vec::with_capacity(steps);
+        let t0 = Instant::now();
+        for _ in 0..steps {
+            let t = Instant::now();
+            request(
+                &sock,
+                &mut id,
+                Body::EnvStep(EnvStep {
+                    session_id: sid,
+                    actions: actions.clone(),
+                    reset_envs: vec![],
+                }),
+            )?;
+            times.push(t.elapsed());
+        }
+        let total = t0.elapsed().as_secs_f64();
+        request(
+            &sock,
+            &mut id,
+            Body::EnvClose(paddock_proto::EnvClose { session_id: sid }),
+        )?;
+        times.sort();
+        println!(
+            "| {num_envs} | {beams} | {steps} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            percentile(&times, 0.5),
+            percentile(&times, 0.99),
+            total / steps as f64 * 1e6,
+            steps as f64 * f64::from(num_envs) / total
+        );
+    }
+    Ok(())
+}
