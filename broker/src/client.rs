@@ -6,16 +6,16 @@
 //! ```no_run
 //! use paddock_broker::client::Client;
 //! use paddock_proto::{Body, StatusRequest};
-//! let mut c = Client::connect("tcp://127.0.0.1:5555").unwrap();
-//! let Body::BrokerStatus(s) = c.request(Body::StatusRequest(StatusRequest {})).unwrap() else {
+//! let mut c = Client::connect("tcp://127.0.0.1:5555").unwrap(); // ok: example
+//! let Body::BrokerStatus(s) = c.request(Body::StatusRequest(StatusRequest {})).unwrap() else { // ok: example
 //!     unreachable!()
 //! };
 //! println!("{} workers", s.workers.len());
 //! ```
 
-use paddock_libzmq::Curve;
 use std::time::{Duration, Instant};
 
+use paddock_libzmq::Curve;
 use paddock_proto::Body;
 
 /// Why a request got no good reply.

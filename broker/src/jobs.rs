@@ -180,7 +180,13 @@ fn agent_from_proto(
         e.message = e.message.replacen("agents[0]", field, 1);
         e
     })?;
-    Ok(sc.agents.into_iter().next().expect("one agent"))
+    sc.agents.into_iter().next().ok_or_else(|| {
+        paddock_proto::error(
+            paddock_proto::ErrorCode::InvalidArgument,
+            field,
+            "the agent could not be read",
+        )
+    })
 }
 
 impl JobWork {

@@ -6,13 +6,13 @@
 //! named by content hash). When the broker answers NOT_FOUND for a map hash, the
 //! client stores its maps there with `PutMap` and sends the batch again.
 
-use paddock_libzmq::Curve;
 use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use paddock_broker::client::{Client, ClientError};
+use paddock_libzmq::Curve;
 use paddock_proto::convert::{batch_to_proto, local_map, map_ref, outcome_from_proto};
 use paddock_proto::{Body, ErrorCode, MapBundle};
 use paddock_rollout::{EpisodeResult, EpisodeTask, Executor, RolloutError};

@@ -24,6 +24,40 @@ PROTOCOL_VERSION = 1
 DEFAULT_TIMEOUT = 30.0
 
 
+def _read_key(path: str, name: str) -> bytes:
+    """The Z85 value of ``name = "..."`` in a key file written by ``paddock keys generate``."""
+    try:
+        text = open(path, encoding="utf-8").read()
+    except OSError as e:
+        raise errors.PaddockError(f"key file {path}: {e}") from e
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("#") or "=" not in line:
+            continue
+        key, _, value = line.partition("=")
+        if key.strip() == name:
+            value = value.strip().strip('"')
+            if len(value) != 40:
+                raise errors.PaddockError(f"key file {path}: {name} key {value!r} is not 40 Z85 characters")
+            return value.encode()
+    raise errors.PaddockError(f"key file {path}: no `{name} = \"...\"` line")
+
+
+def curve_keys() -> tuple[bytes, bytes, bytes] | None:
+    """CURVE keys from ``PADDOCK_KEY_FILE`` (this client's key file) and
+    ``PADDOCK_BROKER_KEY_FILE`` (the broker's public key file), the same variables the
+    ``paddock`` CLI reads; None when neither is set (plain TCP)."""
+    import os
+
+    key_file = os.environ.get("PADDOCK_KEY_FILE")
+    broker_file = os.environ.get("PADDOCK_BROKER_KEY_FILE")
+    if not key_file and not broker_file:
+        return None
+    if not (key_file and broker_file):
+        raise errors.PaddockError("PADDOCK_KEY_FILE and PADDOCK_BROKER_KEY_FILE must be set together")
+    return (_read_key(key_file, "public"), _read_key(key_file, "secret"), _read_key(broker_file, "public"))
+
+
 class Connection:
     """A DEALER socket connected to a broker's client endpoint (not thread-safe: one
     request at a time; a lock serialises callers)."""
@@ -45,6 +79,12 @@ class Connection:
 
     def _connect(self) -> None:
         s = self._ctx.socket(zmq.DEALER)
+        curve = curve_keys()
+        if curve is not None:
+            public, secret, server = curve
+            s.curve_publickey = public
+            s.curve_secretkey = secret
+            s.curve_serverkey = server
         s.setsockopt(zmq.LINGER, 0)
         s.setsockopt(zmq.SNDTIMEO, int(self.timeout * 1000))
         s.connect(self.endpoint)

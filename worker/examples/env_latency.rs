@@ -7,6 +7,8 @@
 //! cargo run --release -p paddock-worker --example env_latency -- tcp://127.0.0.1:5555 [steps]
 //! ```
 
+// links libzmq (built with CURVE by paddock-libzmq) into this binary
+use paddock_libzmq as _;
 use std::time::{Duration, Instant};
 
 use paddock_proto::{Body, EnvOpen, EnvReset, EnvStep, Lidar, PutMap, decode, encode, pack_f32};

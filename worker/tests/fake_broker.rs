@@ -1,6 +1,8 @@
 //! The worker against a scripted broker (a ROUTER socket in the test): hello, credit,
 //! map requests, results equal to local runs, bad input, heartbeats and reconnects.
 
+// links libzmq (built with CURVE by paddock-libzmq) into this binary
+use paddock_libzmq as _;
 use std::time::{Duration, Instant};
 
 use paddock_proto::convert::{local_map, map_ref, outcome_from_proto, scenario_to_proto};

@@ -184,7 +184,10 @@ impl Scheduler {
             if !src.queue.is_empty() {
                 self.turn.push_back(sid);
             }
-            let task = self.tasks.get_mut(&t).expect("queued tasks are open");
+            // a queued task is always open; a stale id is skipped, never trusted
+            let Some(task) = self.tasks.get_mut(&t) else {
+                continue;
+            };
             task.worker = Some(worker.to_vec());
             task.attempts += 1;
             return Some(Assigned {
