@@ -124,7 +124,9 @@ fn compose_cluster_with_keys_survives_kills_and_matches_local() {
         return;
     }
     let started = Instant::now();
-    run(Command::new("bash").arg(repo().join("deploy/build.sh")));
+    run(Command::new("bash")
+        .arg(repo().join("deploy/build.sh"))
+        .env("PADDOCK_BIN", paddock()));
     eprintln!("images built in {:.0} s", started.elapsed().as_secs_f64());
 
     let dir = tempfile::tempdir().expect("temp dir");
