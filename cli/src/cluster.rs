@@ -232,8 +232,9 @@ pub fn worker(args: &WorkerArgs) -> Result<()> {
     }
     let mut worker = paddock_worker::Worker::new(cfg).context("starting the worker")?;
     eprintln!(
-        "worker {}: {} threads, broker at {}",
+        "worker {}: {} threads (holds up to {} tasks), broker at {}",
         worker.worker_id(),
+        worker.threads(),
         worker.capacity(),
         args.connect
     );

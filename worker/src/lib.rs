@@ -1,9 +1,11 @@
 //! # paddock-worker: runs rollout tasks for a broker
 //!
 //! A worker connects a DEALER socket to the broker's backend, says hello with its
-//! capacity (the threads of its rayon pool) and the maps it holds, and then runs the
-//! tasks the broker assigns, sending each result as soon as it is finished. The broker
-//! never assigns more tasks than the capacity (credit), so the pool never queues.
+//! capacity and the maps it holds, and then runs the tasks the broker assigns, sending
+//! each result as soon as it is finished. The broker never assigns more tasks than the
+//! capacity (credit). The capacity is twice the threads of its rayon pool: each thread
+//! has one task running and one waiting, so no thread idles for the broker's round trip
+//! between two short episodes.
 //!
 //! Why it is built this way:
 //! - Episodes run on a rayon pool; finished results come back to the socket thread
@@ -58,6 +60,9 @@ fn zmq_err(what: impl Into<String>) -> impl FnOnce(zmq::Error) -> WorkerError {
     let what = what.into();
     move |source| WorkerError::Zmq { what, source }
 }
+
+/// Tasks held per pool thread: one running and one waiting (see the module docs).
+pub const PREFETCH: usize = 2;
 
 /// How a worker runs.
 #[derive(Debug, Clone)]
@@ -138,7 +143,10 @@ pub struct Worker {
     cfg: WorkerConfig,
     ctx: zmq::Context,
     worker_id: String,
+    /// Tasks held at once (the credit declared to the broker).
     capacity: usize,
+    /// Threads of the pool.
+    threads: usize,
     pool: rayon::ThreadPool,
     results_rx: zmq::Socket,
     results_tx: Arc<Mutex<zmq::Socket>>,
@@ -203,7 +211,8 @@ impl Worker {
             cfg,
             ctx,
             worker_id,
-            capacity: threads,
+            capacity: threads * PREFETCH,
+            threads,
             pool,
             results_rx,
             results_tx: Arc::new(Mutex::new(results_tx)),
@@ -226,6 +235,11 @@ impl Worker {
 
     pub fn capacity(&self) -> usize {
         self.capacity
+    }
+
+    /// Episodes run at once.
+    pub fn threads(&self) -> usize {
+        self.threads
     }
 
     pub fn stats(&self) -> Arc<WorkerStats> {

@@ -81,7 +81,8 @@ fn runs_tasks_asks_for_maps_once_and_refuses_bad_input() {
     let Body::WorkerHello(hello) = hello else {
         panic!("expected hello, got {hello:?}");
     };
-    assert_eq!(hello.capacity, 2);
+    // two threads, each with one task running and one waiting
+    assert_eq!(hello.capacity, 2 * paddock_worker::PREFETCH as u32);
     assert!(hello.maps.is_empty());
     assert_eq!(hello.worker_id, worker.worker_id);
 
