@@ -182,7 +182,16 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
         t0.elapsed().as_secs_f64(),
         analysis.rmse_before
     );
-    assert!(kept.is_empty(), "sysid reports a mismatch: {kept:?}");
+    // The one mismatch allowed is the bridge's own transport: at --rate 4 a drive command
+    // sometimes reaches the SIL car one physics step after the scan it answers, which
+    // sysid may (correctly) see as a steering delay of one or two 10 ms steps.
+    let transport_only = analysis.candidates.iter().filter(|c| c.selected).all(|c| {
+        c.evidence.kind.name() == "steering_delay" && c.values.iter().all(|&d| d <= 0.02 + 1e-9)
+    });
+    assert!(
+        transport_only,
+        "sysid reports a mismatch beyond the bridge's transport delay: {kept:?}"
+    );
 }
 
 fn scan_ahead(stamp: Time, ahead: f32) -> LaserScan {
