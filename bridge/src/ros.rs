@@ -232,17 +232,25 @@ impl RosNode {
         &self.config
     }
 
-    /// A publisher of `M` on `topic` with the configured publish QoS.
-    pub fn publisher<M: RosMessage>(&mut self, topic: &str) -> Result<Publisher<M>, BridgeError> {
+    /// The DDS topic of `M` named `topic`.
+    fn topic<M: RosMessage>(
+        &mut self,
+        topic: &str,
+        qos: &QosProfile,
+    ) -> Result<ros2_client::dds::rustdds::Topic, BridgeError> {
         let name = topic_name("topic", topic)?;
-        let qos = self.config.publish_qos.profile();
-        let t = self
-            .node
-            .create_topic(&name, MessageTypeName::new(M::PACKAGE, M::TYPE), &qos)
+        self.node
+            .create_topic(&name, MessageTypeName::new(M::PACKAGE, M::TYPE), qos)
             .map_err(|e| BridgeError::Ros {
                 what: format!("creating topic {topic}"),
                 message: format!("{e:?}"),
-            })?;
+            })
+    }
+
+    /// A publisher of `M` on `topic` with the configured publish QoS.
+    pub fn publisher<M: RosMessage>(&mut self, topic: &str) -> Result<Publisher<M>, BridgeError> {
+        let qos = self.config.publish_qos.profile();
+        let t = self.topic::<M>(topic, &qos)?;
         self.node
             .create_publisher::<M>(&t, Some(qos))
             .map_err(|e| BridgeError::Ros {
@@ -256,15 +264,8 @@ impl RosNode {
         &mut self,
         topic: &str,
     ) -> Result<Subscription<M>, BridgeError> {
-        let name = topic_name("topic", topic)?;
         let qos = self.config.subscribe_qos.profile();
-        let t = self
-            .node
-            .create_topic(&name, MessageTypeName::new(M::PACKAGE, M::TYPE), &qos)
-            .map_err(|e| BridgeError::Ros {
-                what: format!("creating topic {topic}"),
-                message: format!("{e:?}"),
-            })?;
+        let t = self.topic::<M>(topic, &qos)?;
         self.node
             .create_subscription::<M>(&t, Some(qos))
             .map_err(|e| BridgeError::Ros {

@@ -34,6 +34,22 @@ impl Broker {
 
     /// The worker and the worker's session id of a client's session, or an error
     /// reply naming `field`.
+    /// Forwards an env reset, step or close to the worker hosting its session, with the
+    /// broker's session id replaced by the worker's.
+    pub(super) fn route_env(&mut self, client: ClientKey, rid: u64, mut body: Body) {
+        let (session_id, field) = match &mut body {
+            Body::EnvReset(r) => (&mut r.session_id, "env_reset.session_id"),
+            Body::EnvStep(s) => (&mut s.session_id, "env_step.session_id"),
+            Body::EnvClose(c) => (&mut c.session_id, "env_close.session_id"),
+            _ => return,
+        };
+        let sid = *session_id;
+        if let Some((w, wsid)) = self.session_route(&client, rid, sid, field) {
+            *session_id = wsid;
+            self.forward(client, rid, w, sid, body);
+        }
+    }
+
     pub(super) fn session_route(
         &mut self,
         client: &[u8],

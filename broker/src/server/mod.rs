@@ -466,32 +466,8 @@ impl Broker {
                 self.send(Side::Client, &client, rid, Body::BrokerStatus(status));
             }
             Body::EnvOpen(o) => self.on_env_open(client, rid, o),
-            Body::EnvReset(mut r) => {
-                let sid = r.session_id;
-                if let Some((w, wsid)) =
-                    self.session_route(&client, rid, sid, "env_reset.session_id")
-                {
-                    r.session_id = wsid;
-                    self.forward(client, rid, w, sid, Body::EnvReset(r));
-                }
-            }
-            Body::EnvStep(mut s) => {
-                let sid = s.session_id;
-                if let Some((w, wsid)) =
-                    self.session_route(&client, rid, sid, "env_step.session_id")
-                {
-                    s.session_id = wsid;
-                    self.forward(client, rid, w, sid, Body::EnvStep(s));
-                }
-            }
-            Body::EnvClose(mut c) => {
-                let sid = c.session_id;
-                if let Some((w, wsid)) =
-                    self.session_route(&client, rid, sid, "env_close.session_id")
-                {
-                    c.session_id = wsid;
-                    self.forward(client, rid, w, sid, Body::EnvClose(c));
-                }
+            body @ (Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_)) => {
+                self.route_env(client, rid, body)
             }
             Body::JobSubmit(s) => self.on_job_submit(client, rid, s),
             Body::JobStatus(r) => {
