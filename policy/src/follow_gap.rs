@@ -20,7 +20,7 @@ use paddock_sim::params::VehicleParams;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
-use crate::{Driver, ParamSpec, PolicyError, Sensors};
+use crate::{Driver, ParamSpec, PolicyError, Sensors, default_values};
 
 pub const NAME: &str = "follow-the-gap";
 pub const ABOUT: &str = "reactive follow-the-gap on the LIDAR (bubble, disparity extension)";
@@ -31,90 +31,90 @@ const AHEAD_CONE: f64 = 0.12;
 /// The tunable parameters, in vector order.
 pub fn param_specs() -> Vec<ParamSpec> {
     vec![
-        ParamSpec {
-            name: "clip_range",
-            default: 8.0,
-            lo: 1.0,
-            hi: 30.0,
-            doc: "ranges are clipped to this, m",
-        },
-        ParamSpec {
-            name: "window",
-            default: 3.0,
-            lo: 1.0,
-            hi: 31.0,
-            doc: "moving-average window, beams (rounded)",
-        },
-        ParamSpec {
-            name: "view_angle",
-            default: 1.6,
-            lo: 0.5,
-            hi: 2.35,
-            doc: "only beams within this angle of the heading are considered, rad",
-        },
-        ParamSpec {
-            name: "bubble_radius",
-            default: 0.6,
-            lo: 0.0,
-            hi: 2.0,
-            doc: "radius of the safety bubble cleared around the closest point, m",
-        },
-        ParamSpec {
-            name: "disparity_threshold",
-            default: 0.4,
-            lo: 0.05,
-            hi: 5.0,
-            doc: "a jump between neighbouring ranges larger than this is a disparity, m",
-        },
-        ParamSpec {
-            name: "car_margin",
-            default: 0.2,
-            lo: 0.0,
-            hi: 1.0,
-            doc: "margin beyond the car's half width when extending disparities, m",
-        },
-        ParamSpec {
-            name: "gap_threshold",
-            default: 1.5,
-            lo: 0.2,
-            hi: 10.0,
-            doc: "beams longer than this are free, m",
-        },
-        ParamSpec {
-            name: "aim_centre",
-            default: 0.3,
-            lo: 0.0,
-            hi: 1.0,
-            doc: "aim point: 0 = the gap's furthest beam, 1 = its centre, blended between",
-        },
-        ParamSpec {
-            name: "steer_gain",
-            default: 1.0,
-            lo: 0.2,
-            hi: 3.0,
-            doc: "steering angle per radian of aim angle",
-        },
-        ParamSpec {
-            name: "max_speed",
-            default: 7.5,
-            lo: 0.5,
-            hi: 20.0,
-            doc: "speed when steering straight, m/s",
-        },
-        ParamSpec {
-            name: "min_speed",
-            default: 2.0,
-            lo: 0.2,
-            hi: 20.0,
-            doc: "speed at full steering lock, m/s (at most max_speed)",
-        },
-        ParamSpec {
-            name: "brake_decel",
-            default: 4.0,
-            lo: 0.5,
-            hi: 15.0,
-            doc: "the car must be able to stop within the free distance ahead at this, m/s^2",
-        },
+        ParamSpec::new(
+            "clip_range",
+            8.0,
+            1.0,
+            30.0,
+            "ranges are clipped to this, m",
+        ),
+        ParamSpec::new(
+            "window",
+            3.0,
+            1.0,
+            31.0,
+            "moving-average window, beams (rounded)",
+        ),
+        ParamSpec::new(
+            "view_angle",
+            1.6,
+            0.5,
+            2.35,
+            "only beams within this angle of the heading are considered, rad",
+        ),
+        ParamSpec::new(
+            "bubble_radius",
+            0.6,
+            0.0,
+            2.0,
+            "radius of the safety bubble cleared around the closest point, m",
+        ),
+        ParamSpec::new(
+            "disparity_threshold",
+            0.4,
+            0.05,
+            5.0,
+            "a jump between neighbouring ranges larger than this is a disparity, m",
+        ),
+        ParamSpec::new(
+            "car_margin",
+            0.2,
+            0.0,
+            1.0,
+            "margin beyond the car's half width when extending disparities, m",
+        ),
+        ParamSpec::new(
+            "gap_threshold",
+            1.5,
+            0.2,
+            10.0,
+            "beams longer than this are free, m",
+        ),
+        ParamSpec::new(
+            "aim_centre",
+            0.3,
+            0.0,
+            1.0,
+            "aim point: 0 = the gap's furthest beam, 1 = its centre, blended between",
+        ),
+        ParamSpec::new(
+            "steer_gain",
+            1.0,
+            0.2,
+            3.0,
+            "steering angle per radian of aim angle",
+        ),
+        ParamSpec::new(
+            "max_speed",
+            7.5,
+            0.5,
+            20.0,
+            "speed when steering straight, m/s",
+        ),
+        ParamSpec::new(
+            "min_speed",
+            2.0,
+            0.2,
+            20.0,
+            "speed at full steering lock, m/s (at most max_speed)",
+        ),
+        ParamSpec::new(
+            "brake_decel",
+            4.0,
+            0.5,
+            15.0,
+            "the car must be able to stop within the free distance ahead at this, m/s^2",
+        ),
     ]
 }
 
@@ -139,8 +139,8 @@ pub struct FollowTheGapParams {
 
 impl Default for FollowTheGapParams {
     fn default() -> Self {
-        let d: Vec<f64> = param_specs().iter().map(|s| s.default).collect();
-        Self::from_vector(&d, &VehicleParams::default()).expect("defaults are valid")
+        Self::from_vector(&default_values(&param_specs()), &VehicleParams::default())
+            .expect("defaults are valid")
     }
 }
 

@@ -25,26 +25,29 @@
 //! one that runs longest before its first conflict is taken, and the speed plan stops
 //! before a static conflict or matches the other car's speed at a car conflict.
 //!
-//! The chosen path is tracked by pure pursuit (lookahead `lookahead_min` +
-//! `lookahead_gain` x speed). Speed: the raceline's speed profile times `speed_scale`,
-//! capped by `max_speed` and by sqrt(`lat_accel` / |curvature|) of the chosen path, with
-//! a backward pass at `brake_decel` so the car slows in time.
+//! The chosen path is tracked by the planners' shared tracker ([`crate::tracker`]: pure
+//! pursuit, lookahead `lookahead_min` + `lookahead_gain` x speed, with a cross-track
+//! term). Speed: the raceline's speed profile times `speed_scale`, capped by `max_speed`
+//! and by sqrt(`lat_accel` / |curvature|) of the chosen path, with a backward pass at
+//! `brake_decel` so the car slows in time.
 //!
-//! Reads the LIDAR (obstacles) and the observation's poses and speeds of the other cars.
+//! Reads the LIDAR (obstacles) and the observation's poses and speeds of the other cars
+//! ([`crate::perception`]).
 
 use std::sync::Arc;
 
 use paddock_sim::collision::{obb_hits_map, obb_overlap};
 use paddock_sim::geometry::{Obb, Pose, wrap_angle};
-use paddock_sim::lidar::LidarConfig;
 use paddock_sim::map::Map;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
+use crate::perception::{Perception, View};
 use crate::refpath::{ROUNDING_PASSES, RefPath};
-use crate::{Driver, ParamSpec, PolicyError, Sensors};
+use crate::tracker::{self, Sample, Tracker, TrackerParams, with_headings};
+use crate::{Driver, ParamSpec, PolicyError, Sensors, default_values, rounded_count};
 
 pub const NAME: &str = "lattice";
 pub const ABOUT: &str =
@@ -54,32 +57,18 @@ pub const ABOUT: &str =
 const SAMPLE_STEP: f64 = 0.2;
 /// Length a candidate is continued at its goal offset beyond the goal, m.
 const EXTENSION: f64 = 4.0;
-/// Every this many LIDAR beams is read for obstacles.
-const BEAM_STRIDE: usize = 2;
-/// A LIDAR return this close to a wall of the map is the wall, m.
-const WALL_RETURN: f64 = 0.15;
-/// A LIDAR return this far beyond another car's body is not that car, m.
-const CAR_RETURN: f64 = 0.3;
 /// Distance within which a predicted car adds proximity cost, m.
 const PROXIMITY: f64 = 2.0;
 /// Speed through a curve too tight for the steering, or past a wall the car is
 /// already grazing, m/s.
 const CREEP: f64 = 1.0;
-/// Another car whose driving-line arc length is this far behind this car's is behind, m.
-const BEHIND: f64 = 0.3;
-/// Replan when the car is this far from its plan, m.
-const OFF_PLAN: f64 = 0.4;
+/// How many parameters precede the tracker's in the vector.
+const OWN_PARAMS: usize = 13;
 
 /// The tunable parameters, in vector order.
 pub fn param_specs() -> Vec<ParamSpec> {
-    let p = |name, default, lo, hi, doc| ParamSpec {
-        name,
-        default,
-        lo,
-        hi,
-        doc,
-    };
-    vec![
+    let p = ParamSpec::new;
+    let mut specs = vec![
         p(
             "replan_every",
             15.0,
@@ -165,50 +154,12 @@ pub fn param_specs() -> Vec<ParamSpec> {
             20.0,
             "cost of the fraction of reference speed the curvature takes away",
         ),
-        p(
-            "lookahead_min",
-            0.8,
-            0.3,
-            3.0,
-            "pure-pursuit lookahead at standstill, m",
-        ),
-        p(
-            "lookahead_gain",
-            0.15,
-            0.0,
-            0.6,
-            "pure-pursuit lookahead growth with speed, s",
-        ),
-        p(
-            "track_gain",
-            0.5,
-            0.0,
-            10.0,
-            "cross-track gain of the tracker (Stanley-like term), 1/s",
-        ),
-        p(
-            "speed_scale",
-            0.85,
-            0.2,
-            1.5,
-            "multiplies the raceline's speed profile",
-        ),
-        p(
-            "lat_accel",
-            3.0,
-            1.0,
-            15.0,
-            "lateral acceleration allowed on the chosen path, m/s^2",
-        ),
-        p("max_speed", 5.0, 1.0, 20.0, "speed cap, m/s"),
-        p(
-            "brake_decel",
-            5.0,
-            1.0,
-            15.0,
-            "deceleration the speed plan assumes, m/s^2",
-        ),
-    ]
+    ];
+    specs.extend(tracker::param_specs(
+        "multiplies the raceline's speed profile",
+        "lateral acceleration allowed on the chosen path, m/s^2",
+    ));
+    specs
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -226,38 +177,32 @@ pub struct LatticeParams {
     pub w_opponent: f64,
     pub w_change: f64,
     pub w_progress: f64,
-    pub lookahead_min: f64,
-    pub lookahead_gain: f64,
-    pub track_gain: f64,
-    pub speed_scale: f64,
-    pub lat_accel: f64,
-    pub max_speed: f64,
-    pub brake_decel: f64,
-    /// From the car (not tuned): wheelbase, body, steering limit.
-    pub wheelbase: f64,
+    /// The tracker's parameters (the vector's last [`tracker::NUM_PARAMS`]).
+    #[serde(flatten)]
+    pub tracker: TrackerParams,
+    /// From the car (not tuned): body length and width.
     pub length: f64,
     pub width: f64,
-    pub steer_max: f64,
 }
 
 impl Default for LatticeParams {
     fn default() -> Self {
-        let d: Vec<f64> = param_specs().iter().map(|s| s.default).collect();
-        Self::from_vector(&d, &VehicleParams::default()).expect("defaults are valid")
+        Self::from_vector(&default_values(&param_specs()), &VehicleParams::default())
+            .expect("defaults are valid")
     }
 }
 
 impl LatticeParams {
     /// From a vector in [`param_specs`] order (bounds checked by the caller).
     pub fn from_vector(v: &[f64], vehicle: &VehicleParams) -> Result<Self, PolicyError> {
-        let round = |x: f64| libm::round(x).max(1.0) as usize;
+        let tracker = TrackerParams::after_own(NAME, v, OWN_PARAMS, vehicle)?;
         let p = Self {
-            replan_every: round(v[0]),
+            replan_every: rounded_count(v[0]),
             horizon_min: v[1],
             horizon_time: v[2],
-            num_lengths: round(v[3]),
+            num_lengths: rounded_count(v[3]),
             lateral_span: v[4],
-            num_offsets: round(v[5]),
+            num_offsets: rounded_count(v[5]),
             wall_margin: v[6],
             car_margin: v[7],
             w_offset: v[8],
@@ -265,17 +210,9 @@ impl LatticeParams {
             w_opponent: v[10],
             w_change: v[11],
             w_progress: v[12],
-            lookahead_min: v[13],
-            lookahead_gain: v[14],
-            track_gain: v[15],
-            speed_scale: v[16],
-            lat_accel: v[17],
-            max_speed: v[18],
-            brake_decel: v[19],
-            wheelbase: vehicle.lf + vehicle.lr,
+            tracker,
             length: vehicle.length,
             width: vehicle.width,
-            steer_max: vehicle.s_max.min(-vehicle.s_min),
         };
         if p.num_offsets > 1 && p.lateral_span <= 0.0 {
             return Err(PolicyError::Invalid {
@@ -288,22 +225,6 @@ impl LatticeParams {
         }
         Ok(p)
     }
-}
-
-/// One sample of a path.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Sample {
-    x: f64,
-    y: f64,
-    heading: f64,
-    /// Arc length from the path's start, m.
-    sigma: f64,
-    kappa: f64,
-    /// Raceline arc length and offset.
-    s: f64,
-    d: f64,
-    /// Speed limit (filled for the chosen path).
-    v: f64,
 }
 
 /// Where candidates start, in the raceline frame.
@@ -334,111 +255,43 @@ impl Conflict {
     }
 }
 
-/// Another car, predicted in the raceline frame.
-#[derive(Debug, Clone, Copy)]
-struct Other {
-    s: f64,
-    d: f64,
-    /// Heading relative to the raceline.
-    e: f64,
-    /// Behind this car: it is the other car's to avoid (braking for a car that closes
-    /// in from behind would only invite it into this one).
-    behind: bool,
-    /// Speed along the raceline, m/s.
-    vs: f64,
-    x: f64,
-    y: f64,
-}
-
 #[derive(Debug, Clone)]
 pub struct Lattice {
     pub params: LatticeParams,
     path: Arc<RefPath>,
     map: Arc<Map>,
-    fov: f64,
-    max_range: f64,
     /// The plan being tracked.
-    plan: Vec<Sample>,
-    plan_hint: usize,
+    tracker: Tracker,
     ref_hint: Option<usize>,
-    since_replan: usize,
     last_offset: f64,
     /// Work buffers.
-    obstacles: Vec<(f64, f64)>,
-    others: Vec<Other>,
+    /// The other cars and the obstacles at the last replan.
+    seen: Perception,
 }
 
 impl Lattice {
     pub fn new(circuit: &Circuit, params: LatticeParams) -> Self {
-        let lidar = LidarConfig::default();
         Self {
             params,
             path: Arc::new(RefPath::from_circuit(circuit).smoothed(ROUNDING_PASSES)),
             map: circuit.map.clone(),
-            fov: lidar.fov,
-            max_range: lidar.max_range,
-            plan: Vec::new(),
-            plan_hint: 0,
+            tracker: Tracker::default(),
             ref_hint: None,
-            since_replan: 0,
             last_offset: 0.0,
-            obstacles: Vec::new(),
-            others: Vec::new(),
+            seen: Perception::default(),
         }
     }
 
     fn perceive(&mut self, obs: &Observation, me: usize, pose: Pose) {
-        self.others.clear();
-        let own_s = self.path.project(pose.x, pose.y, self.ref_hint).s;
-        let n = obs.poses_x.len();
-        for j in (0..n).filter(|&j| j != me) {
-            let (x, y, th) = (obs.poses_x[j], obs.poses_y[j], obs.poses_theta[j]);
-            let f = self.path.project(x, y, None);
-            let e = wrap_angle(th - f.psi);
-            // a crashed car stays where it is
-            let v = if obs.collisions[j] {
-                0.0
-            } else {
-                obs.linear_vels_x[j]
-            };
-            self.others.push(Other {
-                s: f.s,
-                d: f.d,
-                e,
-                behind: self.path.ds(own_s, f.s) < -BEHIND,
-                vs: v * libm::cos(e),
-                x,
-                y,
-            });
-        }
-        self.obstacles.clear();
-        if obs.num_beams < 2 {
-            return;
-        }
-        let scan = obs.scan(me);
-        let nb = scan.len();
-        let inc = self.fov / (nb - 1) as f64;
-        let reach = self.horizon_max(obs.linear_vels_x[me]) + EXTENSION;
-        let car_r = 0.5 * libm::hypot(self.params.length, self.params.width) + CAR_RETURN;
-        for i in (0..nb).step_by(BEAM_STRIDE) {
-            let r = scan[i];
-            if !(r < 0.98 * self.max_range && r < reach) {
-                continue;
-            }
-            let (sn, cs) = libm::sincos(pose.theta - 0.5 * self.fov + i as f64 * inc);
-            let (px, py) = (pose.x + r * cs, pose.y + r * sn);
-            if self.map.clearance(px, py) < WALL_RETURN {
-                continue;
-            }
-            if self
-                .others
-                .iter()
-                .any(|o| libm::hypot(px - o.x, py - o.y) < car_r)
-            {
-                continue;
-            }
-            self.obstacles.push((px, py));
-        }
+        let view = View {
+            me,
+            pose,
+            own_s: Some(self.path.project(pose.x, pose.y, self.ref_hint).s),
+            reach: self.horizon_max(obs.linear_vels_x[me]) + EXTENSION,
+            length: self.params.length,
+            width: self.params.width,
+        };
+        self.seen.observe(&self.path, &self.map, obs, view);
     }
 
     fn horizon_min(&self, speed: f64) -> f64 {
@@ -478,42 +331,16 @@ impl Lattice {
                 dg
             };
             let (x, y, _) = self.path.to_world(s0 + u, d);
-            let sigma = match out.last() {
-                Some(prev) => prev.sigma + libm::hypot(x - prev.x, y - prev.y),
-                None => 0.0,
-            };
-            out.push(Sample {
-                x,
-                y,
-                heading: 0.0,
-                sigma,
-                kappa: 0.0,
-                s: s0 + u,
-                d,
-                v: 0.0,
-            });
+            out.push(Sample::after(out.last(), x, y, s0 + u, d));
         }
-        let m = out.len();
-        for k in 0..m {
-            let (a, b) = (k.saturating_sub(1), (k + 1).min(m - 1));
-            out[k].heading = libm::atan2(out[b].y - out[a].y, out[b].x - out[a].x);
-        }
-        for k in 1..m.saturating_sub(1) {
-            let dh = wrap_angle(out[k + 1].heading - out[k - 1].heading);
-            let ds = out[k + 1].sigma - out[k - 1].sigma;
-            out[k].kappa = if ds > 1e-9 { dh / ds } else { 0.0 };
-        }
-        if m >= 2 {
-            out[0].kappa = out[1].kappa;
-            out[m - 1].kappa = out[m - 2].kappa;
-        }
+        with_headings(&mut out);
         out
     }
 
     /// The first conflict along the candidate (up to its goal) and the proximity cost.
     fn check(&self, c: &[Sample], len: f64, speed: f64) -> (Option<Conflict>, f64) {
         let p = &self.params;
-        let kappa_max = libm::tan(p.steer_max) / p.wheelbase;
+        let kappa_max = p.tracker.kappa_max();
         let v_time = speed.max(1.0);
         let mut proximity = 0.0;
         let grow = |o: &Obb, m: f64| Obb {
@@ -535,7 +362,7 @@ impl Lattice {
             let wide = grow(&body, p.car_margin);
             let (cs, sn) = (libm::cos(smp.heading), libm::sin(smp.heading));
             let r2 = wide.circumradius() * wide.circumradius();
-            for &(ox, oy) in &self.obstacles {
+            for &(ox, oy) in &self.seen.obstacles {
                 let (dx, dy) = (ox - smp.x, oy - smp.y);
                 if dx * dx + dy * dy > r2 {
                     continue;
@@ -546,7 +373,7 @@ impl Lattice {
                 }
             }
             let t = smp.sigma / v_time;
-            for o in self.others.iter().filter(|o| !o.behind) {
+            for o in self.seen.others.iter().filter(|o| !o.behind) {
                 let travel = o.vs * t;
                 let (x, y, psi) = self.path.to_world(o.s + travel, o.d);
                 let dist = libm::hypot(x - smp.x, y - smp.y);
@@ -575,34 +402,22 @@ impl Lattice {
 
     /// Speed limits along the chosen path.
     fn speed_plan(&self, c: &mut [Sample], conflict: Option<Conflict>) {
-        let p = &self.params;
-        for smp in c.iter_mut() {
-            let reference = (self.path.at(smp.s).vx * p.speed_scale).min(p.max_speed);
-            let curve = if smp.kappa.abs() > 1e-6 {
-                libm::sqrt(p.lat_accel / smp.kappa.abs())
+        // a curve too tight for the steering is still driven, slowly (the tracker turns
+        // at full lock); stopping there would leave the car stuck for good
+        let (stop_at, v_at) = match conflict {
+            None => (f64::INFINITY, f64::INFINITY),
+            Some(Conflict::Car { sigma, speed }) => (sigma - 0.3, speed),
+            Some(Conflict::Curvature { sigma }) => (sigma - 0.5, CREEP),
+            Some(Conflict::Static { sigma }) if sigma < 0.6 => (0.0, CREEP),
+            Some(Conflict::Static { sigma }) => (sigma - 0.5, 0.0),
+        };
+        self.params.tracker.speed_plan(&self.path, c, |smp| {
+            if smp.sigma >= stop_at {
+                v_at
             } else {
                 f64::INFINITY
-            };
-            smp.v = reference.min(curve);
-        }
-        if let Some(conflict) = conflict {
-            // a curve too tight for the steering is still driven, slowly (the tracker
-            // turns at full lock); stopping there would leave the car stuck for good
-            let (stop_at, v_at) = match conflict {
-                Conflict::Car { sigma, speed } => (sigma - 0.3, speed),
-                Conflict::Curvature { sigma } => (sigma - 0.5, CREEP),
-                Conflict::Static { sigma } if sigma < 0.6 => (0.0, CREEP),
-                Conflict::Static { sigma } => (sigma - 0.5, 0.0),
-            };
-            for smp in c.iter_mut().filter(|s| s.sigma >= stop_at) {
-                smp.v = smp.v.min(v_at);
             }
-        }
-        for k in (0..c.len().saturating_sub(1)).rev() {
-            let ds = c[k + 1].sigma - c[k].sigma;
-            let lim = libm::sqrt(c[k + 1].v * c[k + 1].v + 2.0 * p.brake_decel * ds);
-            c[k].v = c[k].v.min(lim);
-        }
+        });
     }
 
     /// Continue the current plan where the car is on it (its offset, slope and
@@ -616,21 +431,17 @@ impl Lattice {
             p0: libm::tan(e.clamp(-1.0, 1.0)),
             a0: 0.0,
         };
-        if self.plan.len() < 3 {
+        let plan = self.tracker.plan();
+        if plan.len() < 3 {
             return own;
         }
         // the plan's samples bracketing the car's arc length
-        let s_car = self.plan[0].s + self.path.ds(self.plan[0].s, s);
-        let Some(k) = (0..self.plan.len() - 1)
-            .find(|&k| self.plan[k].s <= s_car && s_car < self.plan[k + 1].s)
+        let s_car = plan[0].s + self.path.ds(plan[0].s, s);
+        let Some(k) = (0..plan.len() - 1).find(|&k| plan[k].s <= s_car && s_car < plan[k + 1].s)
         else {
             return own;
         };
-        let (a, b, c) = (
-            &self.plan[k.saturating_sub(1)],
-            &self.plan[k],
-            &self.plan[k + 1],
-        );
+        let (a, b, c) = (&plan[k.saturating_sub(1)], &plan[k], &plan[k + 1]);
         let h1 = if k == 0 { 1.0 } else { b.s - a.s };
         let h2 = c.s - b.s;
         if h1 <= 1e-9 || h2 <= 1e-9 {
@@ -687,17 +498,7 @@ impl Lattice {
                     .sum::<f64>()
                     / count;
                 let max_kappa = within.iter().fold(0.0f64, |m, s| m.max(s.kappa.abs()));
-                let v_ref = self.path.at(f.s).vx * p.speed_scale;
-                let v_curve = if max_kappa > 1e-6 {
-                    libm::sqrt(p.lat_accel / max_kappa)
-                } else {
-                    f64::INFINITY
-                };
-                let lost = if v_ref > 0.0 {
-                    (1.0 - v_curve / v_ref).max(0.0)
-                } else {
-                    0.0
-                };
+                let lost = p.tracker.speed_lost(&self.path, f.s, max_kappa);
                 let cost = p.w_offset * mean_offset
                     + p.w_curvature * extra_curv
                     + p.w_opponent * proximity
@@ -726,64 +527,19 @@ impl Lattice {
             (None, None) => (Vec::new(), None, 0.0),
         };
         self.speed_plan(&mut plan, conflict);
-        self.plan = plan;
-        self.plan_hint = 0;
+        self.tracker.set_plan(plan);
         self.last_offset = offset;
-        self.since_replan = 0;
-    }
-
-    fn nearest_on_plan(&mut self, x: f64, y: f64) -> Option<(usize, f64)> {
-        if self.plan.is_empty() {
-            return None;
-        }
-        let d2 = |s: &Sample| (s.x - x) * (s.x - x) + (s.y - y) * (s.y - y);
-        let mut i = self.plan_hint.min(self.plan.len() - 1);
-        while i + 1 < self.plan.len() && d2(&self.plan[i + 1]) <= d2(&self.plan[i]) {
-            i += 1;
-        }
-        self.plan_hint = i;
-        Some((i, libm::sqrt(d2(&self.plan[i]))))
     }
 
     /// The action for a car at `pose` moving at `speed`; `obs` gives the others.
     fn drive(&mut self, obs: &Observation, me: usize) -> Action {
         let pose = Pose::new(obs.poses_x[me], obs.poses_y[me], obs.poses_theta[me]);
         let speed = obs.linear_vels_x[me];
-        let off = self.nearest_on_plan(pose.x, pose.y);
-        if off.is_none_or(|(i, dist)| {
-            dist > OFF_PLAN
-                || self.since_replan >= self.params.replan_every
-                || i + 5 >= self.plan.len()
-        }) {
+        if self.tracker.due(pose, self.params.replan_every) {
             self.perceive(obs, me, pose);
             self.replan(pose, speed);
         }
-        self.since_replan += 1;
-        let Some((i, _)) = self.nearest_on_plan(pose.x, pose.y) else {
-            return Action::new(0.0, 0.0);
-        };
-        let p = &self.params;
-        let ahead = |dist: f64| {
-            let target = self.plan[i].sigma + dist;
-            (i..self.plan.len())
-                .find(|&k| self.plan[k].sigma >= target)
-                .unwrap_or(self.plan.len() - 1)
-        };
-        let j = ahead(p.lookahead_min + p.lookahead_gain * speed.max(0.0));
-        let (dx, dy) = (self.plan[j].x - pose.x, self.plan[j].y - pose.y);
-        let (sn, cs) = libm::sincos(pose.theta);
-        let local_y = -sn * dx + cs * dy;
-        let dist2 = (dx * dx + dy * dy).max(1e-6);
-        // pure pursuit plus a Stanley-like cross-track term (the lookahead alone corrects
-        // an offset from the plan slowly at speed)
-        let q = &self.plan[i];
-        let (hs, hc) = libm::sincos(q.heading);
-        let cross = -hs * (pose.x - q.x) + hc * (pose.y - q.y);
-        let steer = (libm::atan(p.wheelbase * 2.0 * local_y / dist2)
-            - libm::atan(p.track_gain * cross / (speed.max(0.0) + 1.0)))
-        .clamp(-p.steer_max, p.steer_max);
-        let k = ahead(0.25 * speed.max(0.0));
-        Action::new(steer, self.plan[k].v)
+        self.tracker.follow(&self.params.tracker, pose, speed)
     }
 }
 
@@ -797,10 +553,8 @@ impl Driver for Lattice {
     }
 
     fn reset(&mut self) {
-        self.plan.clear();
-        self.plan_hint = 0;
+        self.tracker.reset();
         self.ref_hint = None;
-        self.since_replan = 0;
         self.last_offset = 0.0;
     }
 

@@ -11,9 +11,11 @@
 pub mod follow_gap;
 pub mod lattice;
 pub mod mlp;
+pub mod perception;
 pub mod pure_pursuit;
 pub mod refpath;
 pub mod rrt_star;
+pub mod tracker;
 
 use std::sync::Arc;
 
@@ -67,6 +69,24 @@ pub struct ParamSpec {
     pub doc: &'static str,
 }
 
+impl ParamSpec {
+    pub const fn new(
+        name: &'static str,
+        default: f64,
+        lo: f64,
+        hi: f64,
+        doc: &'static str,
+    ) -> Self {
+        Self {
+            name,
+            default,
+            lo,
+            hi,
+            doc,
+        }
+    }
+}
+
 /// The sensors a driver reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Sensors {
@@ -110,13 +130,23 @@ pub fn check_params(driver: &str, specs: &[ParamSpec], values: &[f64]) -> Result
     Ok(())
 }
 
+/// The default of every parameter in `specs`, in order.
+pub fn default_values(specs: &[ParamSpec]) -> Vec<f64> {
+    specs.iter().map(|s| s.default).collect()
+}
+
+/// A count parameter (tuned as a real number): rounded, at least 1.
+fn rounded_count(x: f64) -> usize {
+    libm::round(x).max(1.0) as usize
+}
+
 /// Defaults of `specs` with the named overrides applied (`name=value` pairs).
 pub fn params_from_overrides(
     driver: &str,
     specs: &[ParamSpec],
     overrides: &[(String, f64)],
 ) -> Result<Vec<f64>, PolicyError> {
-    let mut v: Vec<f64> = specs.iter().map(|s| s.default).collect();
+    let mut v = default_values(specs);
     for (name, value) in overrides {
         let Some(i) = specs.iter().position(|s| s.name == name) else {
             return Err(PolicyError::UnknownParam {

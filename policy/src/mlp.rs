@@ -107,12 +107,8 @@ impl MlpConfig {
         names
             .iter()
             .zip(init)
-            .map(|(name, default)| ParamSpec {
-                name,
-                default,
-                lo: -WEIGHT_BOUND,
-                hi: WEIGHT_BOUND,
-                doc: "MLP weight",
+            .map(|(name, default)| {
+                ParamSpec::new(name, default, -WEIGHT_BOUND, WEIGHT_BOUND, "MLP weight")
             })
             .collect()
     }

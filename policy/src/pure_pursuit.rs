@@ -17,7 +17,7 @@ use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
 use crate::refpath::{RefPath, speed_profile};
-use crate::{Driver, ParamSpec, Sensors};
+use crate::{Driver, ParamSpec, Sensors, default_values};
 
 pub const NAME: &str = "pure-pursuit";
 
@@ -32,55 +32,43 @@ pub const ABOUT: &str = "pure pursuit on the raceline with a curvature-based spe
 /// The tunable parameters, in vector order.
 pub fn param_specs() -> Vec<ParamSpec> {
     vec![
-        ParamSpec {
-            name: "lookahead_min",
-            default: 0.6,
-            lo: 0.3,
-            hi: 3.0,
-            doc: "lookahead distance at standstill, m",
-        },
-        ParamSpec {
-            name: "lookahead_gain",
-            default: 0.1,
-            lo: 0.0,
-            hi: 0.6,
-            doc: "lookahead growth with speed, s (lookahead = min + gain * v)",
-        },
-        ParamSpec {
-            name: "lat_accel",
-            default: 2.5,
-            lo: 1.0,
-            hi: 15.0,
-            doc: "lateral acceleration the speed profile allows, m/s^2",
-        },
-        ParamSpec {
-            name: "brake_decel",
-            default: 5.0,
-            lo: 1.0,
-            hi: 15.0,
-            doc: "deceleration the speed profile plans with, m/s^2",
-        },
-        ParamSpec {
-            name: "max_speed",
-            default: 5.0,
-            lo: 1.0,
-            hi: 20.0,
-            doc: "speed cap, m/s",
-        },
-        ParamSpec {
-            name: "speed_scale",
-            default: 1.0,
-            lo: 0.2,
-            hi: 1.5,
-            doc: "multiplies the speed profile",
-        },
-        ParamSpec {
-            name: "steer_gain",
-            default: 1.0,
-            lo: 0.5,
-            hi: 2.0,
-            doc: "multiplies the pure-pursuit steering angle",
-        },
+        ParamSpec::new(
+            "lookahead_min",
+            0.6,
+            0.3,
+            3.0,
+            "lookahead distance at standstill, m",
+        ),
+        ParamSpec::new(
+            "lookahead_gain",
+            0.1,
+            0.0,
+            0.6,
+            "lookahead growth with speed, s (lookahead = min + gain * v)",
+        ),
+        ParamSpec::new(
+            "lat_accel",
+            2.5,
+            1.0,
+            15.0,
+            "lateral acceleration the speed profile allows, m/s^2",
+        ),
+        ParamSpec::new(
+            "brake_decel",
+            5.0,
+            1.0,
+            15.0,
+            "deceleration the speed profile plans with, m/s^2",
+        ),
+        ParamSpec::new("max_speed", 5.0, 1.0, 20.0, "speed cap, m/s"),
+        ParamSpec::new("speed_scale", 1.0, 0.2, 1.5, "multiplies the speed profile"),
+        ParamSpec::new(
+            "steer_gain",
+            1.0,
+            0.5,
+            2.0,
+            "multiplies the pure-pursuit steering angle",
+        ),
     ]
 }
 
@@ -99,8 +87,7 @@ pub struct PurePursuitParams {
 
 impl Default for PurePursuitParams {
     fn default() -> Self {
-        let d: Vec<f64> = param_specs().iter().map(|s| s.default).collect();
-        Self::from_vector(&d, &VehicleParams::default())
+        Self::from_vector(&default_values(&param_specs()), &VehicleParams::default())
     }
 }
 

@@ -26,20 +26,21 @@
 //! The plan is the cheapest node that reaches 90 % of the window (or, when none does, the
 //! node that gets farthest: the speed plan then stops at its end, or matches the speed of
 //! a car in the way), smoothed by a moving average of the offsets where that stays clear
-//! of walls and obstacles. It is tracked by pure pursuit (lookahead `lookahead_min` +
-//! `lookahead_gain` x speed) with a cross-track term. Speed: the driving line's profile
-//! times `speed_scale`, capped by `max_speed` and by sqrt(`lat_accel` / |curvature|) of
-//! the plan, with a backward pass at `brake_decel`.
+//! of walls and obstacles. It is tracked by the planners' shared tracker
+//! ([`crate::tracker`]: pure pursuit, lookahead `lookahead_min` + `lookahead_gain` x
+//! speed, with a cross-track term). Speed: the driving line's profile times
+//! `speed_scale`, capped by `max_speed` and by sqrt(`lat_accel` / |curvature|) of the
+//! plan, with a backward pass at `brake_decel`.
 //!
 //! Deterministic: the sampler is a seeded PRNG re-seeded at every reset and at the first
 //! step from the car's start pose, so an episode stays a pure function of its scenario
-//! and seed. Reads the LIDAR (obstacles) and the other cars' poses and speeds.
+//! and seed. Reads the LIDAR (obstacles) and the other cars' poses and speeds
+//! ([`crate::perception`]).
 
 use std::sync::Arc;
 
 use paddock_sim::collision::{obb_hits_map, obb_overlap};
-use paddock_sim::geometry::{Obb, Pose, wrap_angle};
-use paddock_sim::lidar::LidarConfig;
+use paddock_sim::geometry::{Obb, Pose};
 use paddock_sim::map::Map;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::rng::Rng;
@@ -47,8 +48,10 @@ use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
+use crate::perception::{Perception, View};
 use crate::refpath::RefPath;
-use crate::{Driver, ParamSpec, PolicyError, Sensors};
+use crate::tracker::{self, Sample, Tracker, TrackerParams, with_headings};
+use crate::{Driver, ParamSpec, PolicyError, Sensors, default_values, rounded_count};
 
 pub const NAME: &str = "rrt-star";
 pub const ABOUT: &str = "RRT* in the driving line's Frenet frame (walls, obstacles, predicted opponents) + pure pursuit";
@@ -59,16 +62,10 @@ const SAMPLE_STEP: f64 = 0.2;
 const EXTENSION: f64 = 3.0;
 /// Walls are not checked this close to the root (the car is already there), m.
 const ROOT_FREE: f64 = 0.4;
-/// Every this many LIDAR beams is read for obstacles.
-const BEAM_STRIDE: usize = 2;
-/// A LIDAR return this close to a wall of the map is the wall, m.
-const WALL_RETURN: f64 = 0.15;
-/// A LIDAR return this far beyond another car's body is not that car, m.
-const CAR_RETURN: f64 = 0.3;
 /// Distance within which a predicted car adds proximity cost, m.
 const PROXIMITY: f64 = 2.0;
-/// Replan when the car is this far from its plan, m.
-const OFF_PLAN: f64 = 0.4;
+/// How many parameters precede the tracker's in the vector.
+const OWN_PARAMS: usize = 13;
 /// A plan that stops short of this (m) because of walls leaves the car stuck.
 const STUCK_REACH: f64 = 1.0;
 /// Speed while rejoining the driving line from a stuck plan, m/s.
@@ -78,14 +75,8 @@ const SMOOTH_HALF: usize = 3;
 
 /// The tunable parameters, in vector order.
 pub fn param_specs() -> Vec<ParamSpec> {
-    let p = |name, default, lo, hi, doc| ParamSpec {
-        name,
-        default,
-        lo,
-        hi,
-        doc,
-    };
-    vec![
+    let p = ParamSpec::new;
+    let mut specs = vec![
         p(
             "replan_every",
             10.0,
@@ -171,50 +162,12 @@ pub fn param_specs() -> Vec<ParamSpec> {
             50.0,
             "cost of proximity to the other cars' predicted boxes",
         ),
-        p(
-            "lookahead_min",
-            0.8,
-            0.3,
-            3.0,
-            "pure-pursuit lookahead at standstill, m",
-        ),
-        p(
-            "lookahead_gain",
-            0.15,
-            0.0,
-            0.6,
-            "pure-pursuit lookahead growth with speed, s",
-        ),
-        p(
-            "track_gain",
-            0.5,
-            0.0,
-            10.0,
-            "cross-track gain of the tracker (Stanley-like term), 1/s",
-        ),
-        p(
-            "speed_scale",
-            0.85,
-            0.2,
-            1.5,
-            "multiplies the driving line's speed profile",
-        ),
-        p(
-            "lat_accel",
-            3.0,
-            1.0,
-            15.0,
-            "lateral acceleration allowed on the plan, m/s^2",
-        ),
-        p("max_speed", 5.0, 1.0, 20.0, "speed cap, m/s"),
-        p(
-            "brake_decel",
-            5.0,
-            1.0,
-            15.0,
-            "deceleration the speed plan assumes, m/s^2",
-        ),
-    ]
+    ];
+    specs.extend(tracker::param_specs(
+        "multiplies the driving line's speed profile",
+        "lateral acceleration allowed on the plan, m/s^2",
+    ));
+    specs
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -232,24 +185,18 @@ pub struct RrtStarParams {
     pub car_margin: f64,
     pub w_offset: f64,
     pub w_opponent: f64,
-    pub lookahead_min: f64,
-    pub lookahead_gain: f64,
-    pub track_gain: f64,
-    pub speed_scale: f64,
-    pub lat_accel: f64,
-    pub max_speed: f64,
-    pub brake_decel: f64,
-    /// From the car (not tuned): wheelbase, body, steering limit.
-    pub wheelbase: f64,
+    /// The tracker's parameters (the vector's last [`tracker::NUM_PARAMS`]).
+    #[serde(flatten)]
+    pub tracker: TrackerParams,
+    /// From the car (not tuned): body length and width.
     pub length: f64,
     pub width: f64,
-    pub steer_max: f64,
 }
 
 impl Default for RrtStarParams {
     fn default() -> Self {
-        let d: Vec<f64> = param_specs().iter().map(|s| s.default).collect();
-        Self::from_vector(&d, &VehicleParams::default()).expect("defaults are valid")
+        Self::from_vector(&default_values(&param_specs()), &VehicleParams::default())
+            .expect("defaults are valid")
     }
 }
 
@@ -257,12 +204,12 @@ impl RrtStarParams {
     /// From a vector in [`param_specs`] order (bounds checked by the caller); checks the
     /// relations between parameters.
     pub fn from_vector(v: &[f64], vehicle: &VehicleParams) -> Result<Self, PolicyError> {
-        let round = |x: f64| libm::round(x).max(1.0) as usize;
+        let tracker = TrackerParams::after_own(NAME, v, OWN_PARAMS, vehicle)?;
         let p = Self {
-            replan_every: round(v[0]),
+            replan_every: rounded_count(v[0]),
             horizon_min: v[1],
             horizon_time: v[2],
-            iterations: round(v[3]),
+            iterations: rounded_count(v[3]),
             step_size: v[4],
             rewire_radius: v[5],
             goal_bias: v[6],
@@ -272,17 +219,9 @@ impl RrtStarParams {
             car_margin: v[10],
             w_offset: v[11],
             w_opponent: v[12],
-            lookahead_min: v[13],
-            lookahead_gain: v[14],
-            track_gain: v[15],
-            speed_scale: v[16],
-            lat_accel: v[17],
-            max_speed: v[18],
-            brake_decel: v[19],
-            wheelbase: vehicle.lf + vehicle.lr,
+            tracker,
             length: vehicle.length,
             width: vehicle.width,
-            steer_max: vehicle.s_max.min(-vehicle.s_min),
         };
         if p.step_size > p.horizon_min {
             return Err(PolicyError::Invalid {
@@ -307,35 +246,6 @@ struct Node {
     cost: f64,
 }
 
-/// One sample of the plan in the world.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Sample {
-    x: f64,
-    y: f64,
-    heading: f64,
-    /// Arc length from the plan's start, m.
-    sigma: f64,
-    kappa: f64,
-    /// Driving-line arc length (unwrapped) and offset.
-    s: f64,
-    d: f64,
-    /// Speed limit.
-    v: f64,
-}
-
-/// Another car, predicted along the driving line.
-#[derive(Debug, Clone, Copy)]
-struct Other {
-    s: f64,
-    d: f64,
-    /// Heading relative to the driving line.
-    e: f64,
-    /// Speed along the driving line, m/s.
-    vs: f64,
-    x: f64,
-    y: f64,
-}
-
 /// Why an edge is not free.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Blocked {
@@ -348,47 +258,37 @@ pub struct RrtStar {
     pub params: RrtStarParams,
     path: Arc<RefPath>,
     map: Arc<Map>,
-    fov: f64,
-    max_range: f64,
     rng: Rng,
     seeded: bool,
     /// The current plan rejoins the driving line at creep speed.
     creep: bool,
     /// The plan being tracked and the tree's waypoints it came from (s, d).
-    plan: Vec<Sample>,
+    tracker: Tracker,
     waypoints: Vec<(f64, f64)>,
-    plan_hint: usize,
     ref_hint: Option<usize>,
-    since_replan: usize,
     /// Per-replan context.
     s0: f64,
     v_time: f64,
-    obstacles: Vec<(f64, f64)>,
-    others: Vec<Other>,
+    /// The other cars and the obstacles at the last replan.
+    seen: Perception,
     nodes: Vec<Node>,
 }
 
 impl RrtStar {
     pub fn new(circuit: &Circuit, params: RrtStarParams) -> Self {
-        let lidar = LidarConfig::default();
         Self {
             params,
             path: Arc::new(RefPath::from_circuit(circuit)),
             map: circuit.map.clone(),
-            fov: lidar.fov,
-            max_range: lidar.max_range,
             rng: Rng::new(0),
             seeded: false,
             creep: false,
-            plan: Vec::new(),
+            tracker: Tracker::default(),
             waypoints: Vec::new(),
-            plan_hint: 0,
             ref_hint: None,
-            since_replan: 0,
             s0: 0.0,
             v_time: 1.0,
-            obstacles: Vec::new(),
-            others: Vec::new(),
+            seen: Perception::default(),
             nodes: Vec::new(),
         }
     }
@@ -400,53 +300,15 @@ impl RrtStar {
     }
 
     fn perceive(&mut self, obs: &Observation, me: usize, pose: Pose, reach: f64) {
-        self.others.clear();
-        for j in (0..obs.poses_x.len()).filter(|&j| j != me) {
-            let (x, y, th) = (obs.poses_x[j], obs.poses_y[j], obs.poses_theta[j]);
-            let f = self.path.project(x, y, None);
-            let e = wrap_angle(th - f.psi);
-            // a crashed car stays where it is
-            let v = if obs.collisions[j] {
-                0.0
-            } else {
-                obs.linear_vels_x[j]
-            };
-            self.others.push(Other {
-                s: f.s,
-                d: f.d,
-                e,
-                vs: v * libm::cos(e),
-                x,
-                y,
-            });
-        }
-        self.obstacles.clear();
-        if obs.num_beams < 2 {
-            return;
-        }
-        let scan = obs.scan(me);
-        let nb = scan.len();
-        let inc = self.fov / (nb - 1) as f64;
-        let car_r = 0.5 * libm::hypot(self.params.length, self.params.width) + CAR_RETURN;
-        for i in (0..nb).step_by(BEAM_STRIDE) {
-            let r = scan[i];
-            if !(r < 0.98 * self.max_range && r < reach) {
-                continue;
-            }
-            let (sn, cs) = libm::sincos(pose.theta - 0.5 * self.fov + i as f64 * inc);
-            let (px, py) = (pose.x + r * cs, pose.y + r * sn);
-            if self.map.clearance(px, py) < WALL_RETURN {
-                continue;
-            }
-            if self
-                .others
-                .iter()
-                .any(|o| libm::hypot(px - o.x, py - o.y) < car_r)
-            {
-                continue;
-            }
-            self.obstacles.push((px, py));
-        }
+        let view = View {
+            me,
+            pose,
+            own_s: None,
+            reach,
+            length: self.params.length,
+            width: self.params.width,
+        };
+        self.seen.observe(&self.path, &self.map, obs, view);
     }
 
     /// Is the car's box at (u, d) heading along slope `slope` clear of walls and
@@ -472,7 +334,7 @@ impl RrtStar {
         );
         let r2 = hl * hl + hw * hw;
         let (sn, cs) = libm::sincos(heading);
-        !self.obstacles.iter().any(|&(ox, oy)| {
+        !self.seen.obstacles.iter().any(|&(ox, oy)| {
             let (dx, dy) = (ox - x, oy - y);
             if dx * dx + dy * dy > r2 {
                 return false;
@@ -495,13 +357,13 @@ impl RrtStar {
             if !self.static_free(u, d, slope) {
                 return Err(Blocked::Static);
             }
-            if self.others.is_empty() {
+            if self.seen.others.is_empty() {
                 continue;
             }
             let (x, y, psi) = self.path.to_world(self.s0 + u, d);
             let body = Obb::car(Pose::new(x, y, psi + libm::atan(slope)), p.length, p.width);
             let t = u / self.v_time;
-            for o in &self.others {
+            for o in &self.seen.others {
                 let travel = o.vs * t;
                 let (ox, oy, opsi) = self.path.to_world(o.s + travel, o.d);
                 let dist = libm::hypot(ox - x, oy - y);
@@ -752,67 +614,26 @@ impl RrtStar {
         let mut out: Vec<Sample> = Vec::with_capacity(us.len());
         for (&u, &d) in us.iter().zip(&ds) {
             let (x, y, _) = self.path.to_world(self.s0 + u, d);
-            let sigma = match out.last() {
-                Some(prev) => prev.sigma + libm::hypot(x - prev.x, y - prev.y),
-                None => 0.0,
-            };
-            if out.last().is_some_and(|prev| sigma - prev.sigma < 1e-9) {
+            let smp = Sample::after(out.last(), x, y, self.s0 + u, d);
+            if out.last().is_some_and(|prev| smp.sigma - prev.sigma < 1e-9) {
                 continue;
             }
-            out.push(Sample {
-                x,
-                y,
-                heading: 0.0,
-                sigma,
-                kappa: 0.0,
-                s: self.s0 + u,
-                d,
-                v: 0.0,
-            });
+            out.push(smp);
         }
-        let m = out.len();
-        for k in 0..m {
-            let (a, b) = (k.saturating_sub(1), (k + 1).min(m - 1));
-            out[k].heading = libm::atan2(out[b].y - out[a].y, out[b].x - out[a].x);
-        }
-        for k in 1..m.saturating_sub(1) {
-            let dh = wrap_angle(out[k + 1].heading - out[k - 1].heading);
-            let ds = out[k + 1].sigma - out[k - 1].sigma;
-            out[k].kappa = if ds > 1e-9 { dh / ds } else { 0.0 };
-        }
-        if m >= 2 {
-            out[0].kappa = out[1].kappa;
-            out[m - 1].kappa = out[m - 2].kappa;
-        }
+        with_headings(&mut out);
         out
     }
 
     /// Speed limits along the plan; `stop` ends a plan that is short of the window at
     /// that speed.
     fn speed_plan(&self, c: &mut [Sample], plan_end: f64, stop: Option<f64>) {
-        let p = &self.params;
-        for smp in c.iter_mut() {
-            let reference = (self.path.at(smp.s).vx * p.speed_scale).min(p.max_speed);
-            let curve = if smp.kappa.abs() > 1e-6 {
-                libm::sqrt(p.lat_accel / smp.kappa.abs())
-            } else {
-                f64::INFINITY
-            };
-            smp.v = reference.min(curve);
-            if self.creep {
-                smp.v = smp.v.min(CREEP);
-            }
-            if let Some(v_end) = stop
-                && smp.s - self.s0 >= plan_end - 0.3
-            {
-                smp.v = smp.v.min(v_end);
-            }
-        }
-        for k in (0..c.len().saturating_sub(1)).rev() {
-            let ds = c[k + 1].sigma - c[k].sigma;
-            let lim = libm::sqrt(c[k + 1].v * c[k + 1].v + 2.0 * p.brake_decel * ds);
-            c[k].v = c[k].v.min(lim);
-        }
+        let creep = if self.creep { CREEP } else { f64::INFINITY };
+        self.params
+            .tracker
+            .speed_plan(&self.path, c, |smp| match stop {
+                Some(v_end) if smp.s - self.s0 >= plan_end - 0.3 => creep.min(v_end),
+                _ => creep,
+            });
     }
 
     fn replan(&mut self, obs: &Observation, me: usize, pose: Pose, speed: f64) {
@@ -841,33 +662,18 @@ impl RrtStar {
             .skip(1)
             .map(|&(u, d)| (self.s0 + u, d))
             .collect();
-        self.plan = plan;
-        self.plan_hint = 0;
-        self.since_replan = 0;
+        self.tracker.set_plan(plan);
     }
 
     /// Is a LIDAR obstacle within a car length ahead of the car?
     fn obstacle_ahead(&self, pose: Pose) -> bool {
         let (sn, cs) = libm::sincos(pose.theta);
         let reach = self.params.length + self.params.car_margin + 0.5;
-        self.obstacles.iter().any(|&(ox, oy)| {
+        self.seen.obstacles.iter().any(|&(ox, oy)| {
             let (dx, dy) = (ox - pose.x, oy - pose.y);
             let (a, b) = (dx * cs + dy * sn, -dx * sn + dy * cs);
             a > 0.0 && a < reach && b.abs() < self.params.width + self.params.car_margin
         })
-    }
-
-    fn nearest_on_plan(&mut self, x: f64, y: f64) -> Option<(usize, f64)> {
-        if self.plan.is_empty() {
-            return None;
-        }
-        let d2 = |s: &Sample| (s.x - x) * (s.x - x) + (s.y - y) * (s.y - y);
-        let mut i = self.plan_hint.min(self.plan.len() - 1);
-        while i + 1 < self.plan.len() && d2(&self.plan[i + 1]) <= d2(&self.plan[i]) {
-            i += 1;
-        }
-        self.plan_hint = i;
-        Some((i, libm::sqrt(d2(&self.plan[i]))))
     }
 
     fn drive(&mut self, obs: &Observation, me: usize) -> Action {
@@ -881,38 +687,10 @@ impl RrtStar {
             self.rng = Rng::new(mix);
             self.seeded = true;
         }
-        let off = self.nearest_on_plan(pose.x, pose.y);
-        if off.is_none_or(|(i, dist)| {
-            dist > OFF_PLAN
-                || self.since_replan >= self.params.replan_every
-                || i + 5 >= self.plan.len()
-        }) {
+        if self.tracker.due(pose, self.params.replan_every) {
             self.replan(obs, me, pose, speed);
         }
-        self.since_replan += 1;
-        let Some((i, _)) = self.nearest_on_plan(pose.x, pose.y) else {
-            return Action::new(0.0, 0.0);
-        };
-        let p = &self.params;
-        let ahead = |dist: f64| {
-            let target = self.plan[i].sigma + dist;
-            (i..self.plan.len())
-                .find(|&k| self.plan[k].sigma >= target)
-                .unwrap_or(self.plan.len() - 1)
-        };
-        let j = ahead(p.lookahead_min + p.lookahead_gain * speed.max(0.0));
-        let (dx, dy) = (self.plan[j].x - pose.x, self.plan[j].y - pose.y);
-        let (sn, cs) = libm::sincos(pose.theta);
-        let local_y = -sn * dx + cs * dy;
-        let dist2 = (dx * dx + dy * dy).max(1e-6);
-        let q = &self.plan[i];
-        let (hs, hc) = libm::sincos(q.heading);
-        let cross = -hs * (pose.x - q.x) + hc * (pose.y - q.y);
-        let steer = (libm::atan(p.wheelbase * 2.0 * local_y / dist2)
-            - libm::atan(p.track_gain * cross / (speed.max(0.0) + 1.0)))
-        .clamp(-p.steer_max, p.steer_max);
-        let k = ahead(0.25 * speed.max(0.0));
-        Action::new(steer, self.plan[k].v)
+        self.tracker.follow(&self.params.tracker, pose, speed)
     }
 }
 
@@ -933,11 +711,9 @@ impl Driver for RrtStar {
         self.rng = Rng::new(0);
         self.seeded = false;
         self.creep = false;
-        self.plan.clear();
+        self.tracker.reset();
         self.waypoints.clear();
-        self.plan_hint = 0;
         self.ref_hint = None;
-        self.since_replan = 0;
     }
 
     fn act(&mut self, obs: &Observation, me: usize) -> Action {
