@@ -42,6 +42,17 @@ pub enum RolloutError {
     World(#[from] paddock_sim::world::WorldError),
 }
 
+impl RolloutError {
+    /// A refused field: names the field, its value and the reason.
+    pub fn invalid(field: &str, value: impl ToString, reason: &str) -> Self {
+        Self::Invalid {
+            field: field.into(),
+            value: value.to_string(),
+            reason: reason.into(),
+        }
+    }
+}
+
 /// The seed of task `index` of a job with seed `job_seed`: a pure function of the two
 /// (never of arrival order or worker), well mixed so neighbouring tasks are unrelated.
 pub fn task_seed(job_seed: u64, index: u64) -> u64 {

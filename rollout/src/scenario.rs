@@ -85,11 +85,7 @@ impl Scenario {
     /// Check every field that a request may carry, naming the first bad one.
     pub fn validate(&self) -> Result<(), RolloutError> {
         let bad = |field: &str, value: String, reason: &str| {
-            Err(RolloutError::Invalid {
-                field: field.into(),
-                value,
-                reason: reason.into(),
-            })
+            Err(RolloutError::invalid(field, value, reason))
         };
         if self.map.is_empty() {
             return bad("map", "\"\"".into(), "a map name or directory is required");

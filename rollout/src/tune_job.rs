@@ -58,11 +58,7 @@ impl TuneSpec {
     /// Check every field, naming the first bad one.
     pub fn validate(&self) -> Result<(), RolloutError> {
         let bad = |field: &str, value: String, reason: &str| {
-            Err(RolloutError::Invalid {
-                field: field.into(),
-                value,
-                reason: reason.into(),
-            })
+            Err(RolloutError::invalid(field, value, reason))
         };
         if self.generations == 0 || self.generations > 10_000 {
             return bad(

@@ -6,6 +6,9 @@
 //!
 //! Recorded (2-core AMD EPYC VM shared with other builds, so +-20 %; AVX path):
 //! scan 28-31 M rays/s (about 36 us per scan), scan_reference 6.8-7.0 M rays/s.
+//! AVX-512 march (eight rays per packet, gathered clearances) on a 2-core Xeon VM under
+//! load 3-4, side by side with the AVX march of the same build: scan 32-34 -> 22-25 us
+//! (32-49 M rays/s).
 //! On shipped tracks from centerline poses (`cargo test -p paddock-sim --release --test
 //! maps -- --ignored --nocapture`): scan 31-37 M rays/s, scan_reference 8-10 M rays/s.
 //! Quadrant clearance tables instead of the centred Chebyshev block, measured side by

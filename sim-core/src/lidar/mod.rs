@@ -116,6 +116,11 @@ impl Lidar {
     /// # Panics
     /// If `out.len() != num_beams`.
     pub fn scan(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64]) {
+        self.scan_with(map, pose, shapes, out, true);
+    }
+
+    /// [`Lidar::scan`], with the SIMD versions allowed or (tests) the portable one only.
+    fn scan_with(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64], simd: bool) {
         let n = self.config.num_beams;
         assert_eq!(out.len(), n, "scan buffer length must equal num_beams");
         let (x, y) = self.origin(pose);
@@ -154,8 +159,15 @@ impl Lidar {
             max_range,
             boxes: &boxes,
         };
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = simd;
         #[cfg(target_arch = "x86_64")]
-        {
+        if simd {
+            if march::avx512_usable(map) {
+                // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F and AVX2.
+                unsafe { self.scan_avx512(map, &job, out) };
+                return;
+            }
             if march::avx_usable(map) {
                 // SAFETY: `avx_usable` checked that the CPU supports AVX.
                 unsafe { self.scan_avx(map, &job, out) };
@@ -173,6 +185,17 @@ impl Lidar {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
     unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
+        self.scan_chunks::<true>(map, job, out);
+    }
+
+    /// [`Lidar::scan_chunks`] compiled with AVX-512 enabled (the march itself picks its
+    /// AVX-512 version either way; this widens the per-beam loops around it).
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F and AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2")]
+    unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
         self.scan_chunks::<true>(map, job, out);
     }
 
@@ -241,10 +264,7 @@ impl Lidar {
     /// Adds N(0, noise_std) to every beam, after the clamp, as the reference does (so a
     /// noisy range can exceed `max_range` or be negative).
     pub fn add_noise(&self, out: &mut [f64], rng: &mut Rng) {
-        let std = self.config.noise_std;
-        for r in out {
-            *r += rng.normal_with(0.0, std);
-        }
+        rng.add_normal(out, 0.0, self.config.noise_std);
     }
 }
 
