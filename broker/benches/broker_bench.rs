@@ -2,7 +2,11 @@
 //!
 //! 1. env-step round trip through the broker on loopback, client -> broker -> worker
 //!    -> broker -> client, with an echo worker that answers with observations of the
-//!    real size (1080-beam scans): p50/p99 for 1 env and for a batch of 64 envs;
+//!    real size (1080-beam scans): p50/p99 for 1 env and for a batch of 64 envs, with
+//!    the worker on TCP (a `paddock worker` process) and on `inproc://` in the broker's
+//!    context (the `paddock serve` topology); the client is always on TCP. Each line
+//!    also gives the voluntary context switches of all threads per step: every one is
+//!    a thread that slept and had to be woken, the main cost on an idle machine;
 //! 2. rollouts/s of the same batch locally (one thread) and through the broker with
 //!    1 and 2 single-threaded in-process workers (one episode per task).
 
@@ -20,11 +24,29 @@ use paddock_rollout::{Executor, LocalExecutor};
 
 const BEAMS: usize = 1080;
 
+/// The spin of the client, the broker or the echo worker (`role` 0, 1, 2): the
+/// default, or from `PADDOCK_BENCH_SPIN_US`, microseconds, one value for all or
+/// `client,broker,worker` (0: always block, as before spinning existed).
+fn spin(role: usize) -> Duration {
+    let Ok(v) = std::env::var("PADDOCK_BENCH_SPIN_US") else {
+        return paddock_broker::server::DEFAULT_SPIN;
+    };
+    let values: Vec<u64> = v.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+    let us = values.get(role).or(values.first()).copied();
+    us.map_or(paddock_broker::server::DEFAULT_SPIN, Duration::from_micros)
+}
+
 /// A worker that hosts fake env sessions answering steps with full-size observations.
-fn echo_worker(backend: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
+/// It waits like the real worker: polls without blocking for a while after a reply.
+fn echo_worker(
+    ctx: zmq::Context,
+    backend: &str,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<()> {
     let backend = backend.to_string();
     std::thread::spawn(move || {
-        let peer = RawPeer::connect(&backend);
+        let peer = RawPeer::connect_in(ctx, &backend);
+        let mut spin_until = Instant::now();
         peer.send(
             1,
             Body::WorkerHello(paddock_proto::WorkerHello {
@@ -35,6 +57,9 @@ fn echo_worker(backend: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<
         );
         let mut num_envs = 1usize;
         while !stop.load(Ordering::Relaxed) {
+            while Instant::now() < spin_until && peer.socket.poll(zmq::POLLIN, 0).unwrap() == 0 {
+                std::thread::yield_now();
+            }
             let Some((rid, body)) = peer.try_recv(Duration::from_millis(20)) else {
                 continue;
             };
@@ -67,6 +92,7 @@ fn echo_worker(backend: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<
                         ..Default::default()
                     };
                     peer.send(rid, Body::EnvObservation(obs));
+                    spin_until = Instant::now() + spin(2);
                 }
                 _ => {}
             }
@@ -78,12 +104,39 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
-fn env_round_trip(num_envs: u32, steps: usize) {
+/// Voluntary context switches of every thread of this process so far.
+fn context_switches() -> u64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return 0;
+    };
+    tasks
+        .flatten()
+        .filter_map(|t| std::fs::read_to_string(t.path().join("status")).ok())
+        .filter_map(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("voluntary_ctxt_switches:"))
+                .and_then(|v| v.trim().parse::<u64>().ok())
+        })
+        .sum()
+}
+
+fn env_round_trip(num_envs: u32, steps: usize, inproc: bool) {
     let dir = tempfile::tempdir().unwrap();
-    let broker = TestBroker::start(dir.path().into(), |_| {});
+    let ctx = zmq::Context::new();
+    let local = "inproc://bench-workers";
+    let broker = TestBroker::start_in(dir.path().into(), ctx.clone(), |c| {
+        c.local_backend = Some(local.into());
+        c.spin = spin(1);
+    });
     let stop = Arc::new(AtomicBool::new(false));
-    let worker = echo_worker(&broker.backend, stop.clone());
+    let (worker_ctx, endpoint) = if inproc {
+        (ctx.clone(), local.to_string())
+    } else {
+        (zmq::Context::new(), broker.backend.clone())
+    };
+    let worker = echo_worker(worker_ctx, &endpoint, stop.clone());
     let mut c = Client::connect(&broker.frontend).unwrap();
+    c.spin = spin(0);
     let (bundle, map) = lakeside();
     c.put_map(bundle).unwrap();
     let session = loop {
@@ -99,7 +152,11 @@ fn env_round_trip(num_envs: u32, steps: usize) {
     };
     let actions = pack_f32(&vec![0.1; 2 * num_envs as usize]);
     let mut times = Vec::with_capacity(steps);
+    let mut switches = 0;
     for i in 0..steps + 200 {
+        if i == 200 {
+            switches = context_switches();
+        }
         let t0 = Instant::now();
         let reply = c
             .request(Body::EnvStep(paddock_proto::EnvStep {
@@ -114,9 +171,11 @@ fn env_round_trip(num_envs: u32, steps: usize) {
             times.push(dt);
         }
     }
+    let switches = (context_switches() - switches) as f64 / steps as f64;
     times.sort_by(f64::total_cmp);
+    let via = if inproc { "inproc" } else { "tcp   " };
     println!(
-        "env step round trip, {num_envs:>2} env(s): p50 {:>7.1} us  p99 {:>7.1} us  ({steps} steps)",
+        "env step round trip, {num_envs:>2} env(s), worker {via}: p50 {:>7.1} us  p99 {:>7.1} us  {switches:>5.1} wake-ups/step  ({steps} steps)",
         percentile(&times, 0.5),
         percentile(&times, 0.99)
     );
@@ -202,7 +261,13 @@ fn main() {
     // `cargo test --benches` runs this with --bench absent: keep that quick
     let quick = !std::env::args().any(|a| a == "--bench");
     let (steps, episodes) = if quick { (50, 8) } else { (5000, 200) };
-    env_round_trip(1, steps);
-    env_round_trip(64, steps);
-    rollouts(episodes);
+    // `cargo bench -p paddock-broker -- env` runs only the round trips
+    let only_env = std::env::args().skip(1).any(|a| a == "env");
+    for inproc in [false, true] {
+        env_round_trip(1, steps, inproc);
+        env_round_trip(64, steps, inproc);
+    }
+    if !only_env {
+        rollouts(episodes);
+    }
 }

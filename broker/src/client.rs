@@ -56,6 +56,9 @@ pub struct Client {
     next_id: u64,
     /// How long [`Client::request`] waits for a reply.
     pub timeout: Duration,
+    /// How long [`Client::recv`] polls without blocking before it sleeps: a reply that
+    /// comes sooner (an env step) needs no thread wake-up. Zero: always block.
+    pub spin: Duration,
 }
 
 impl Client {
@@ -76,6 +79,7 @@ impl Client {
             socket,
             next_id: 1,
             timeout: Duration::from_secs(60),
+            spin: crate::server::DEFAULT_SPIN,
         })
     }
 
@@ -91,8 +95,18 @@ impl Client {
 
     /// Receives the next message, whatever request it answers.
     pub fn recv(&mut self, timeout: Duration) -> Result<(u64, Body), ClientError> {
-        let ms = timeout.as_millis().min(i64::MAX as u128) as i64;
-        let ready = self.socket.poll(zmq::POLLIN, ms).map_err(zmq_err("poll"))?;
+        let t0 = Instant::now();
+        let spin_until = t0 + self.spin.min(timeout);
+        let mut ready = self.socket.poll(zmq::POLLIN, 0).map_err(zmq_err("poll"))?;
+        while ready == 0 && Instant::now() < spin_until {
+            std::thread::yield_now();
+            ready = self.socket.poll(zmq::POLLIN, 0).map_err(zmq_err("poll"))?;
+        }
+        if ready == 0 {
+            let left = timeout.saturating_sub(t0.elapsed());
+            let ms = left.as_millis().min(i64::MAX as u128) as i64;
+            ready = self.socket.poll(zmq::POLLIN, ms).map_err(zmq_err("poll"))?;
+        }
         if ready == 0 {
             return Err(ClientError::Timeout(timeout));
         }

@@ -370,10 +370,11 @@ fn a_full_queue_answers_busy() {
 }
 
 #[test]
-fn env_sessions_route_by_session_and_die_with_their_worker() {
+fn env_sessions_route_by_session_and_move_when_their_worker_dies() {
     let dir = tempfile::tempdir().unwrap();
     let broker = TestBroker::start(dir.path().into(), |c| {
         c.liveness.interval = Duration::from_millis(200);
+        c.session_logs.wait = Duration::from_millis(300);
     });
     let c1 = RawPeer::connect(&broker.frontend);
     let c2 = RawPeer::connect(&broker.frontend);
@@ -445,21 +446,18 @@ fn env_sessions_route_by_session_and_die_with_their_worker() {
         }
         other => panic!("expected env_observation, got {other:?}"),
     }
-    // c2's worker went silent: declared dead, the pending step fails naming the session
-    let e = expect_error(c2.reply_to(5, T));
-    assert_eq!(code(&e), ErrorCode::Internal);
-    assert!(e.message.contains(&format!("env session {s2}")), "{e:?}");
-    c2.send(
-        6,
-        Body::EnvStep(paddock_proto::EnvStep {
-            session_id: s2,
-            actions: vec![],
-            ..Default::default()
-        }),
-    );
-    let e = expect_error(c2.reply_to(6, T));
-    assert_eq!(code(&e), ErrorCode::NotFound);
-    assert!(e.message.contains("lost"), "{e:?}");
+    // c2's worker went silent: declared dead, its session is rebuilt on w1 by replay
+    // and the pending step answered from there
+    match c2.reply_to(5, T) {
+        Body::EnvObservation(o) => {
+            assert_eq!(o.session_id, s2, "the session keeps its id");
+            assert_eq!(o.rewards, vec![2u8; 16]);
+        }
+        other => panic!("expected env_observation after the replay, got {other:?}"),
+    }
+    let st = status(&c1, 9);
+    assert_eq!((st.sessions_replayed, st.sessions_lost), (1, 0));
+    assert_eq!(st.env_sessions, 2);
     // a client cannot drive another client's session
     c2.send(
         7,
@@ -478,7 +476,38 @@ fn env_sessions_route_by_session_and_die_with_their_worker() {
         Body::EnvClosed(c) => assert_eq!(c.session_id, s1),
         other => panic!("expected env_closed, got {other:?}"),
     }
-    assert_eq!(status(&c1, 9).env_sessions, 0);
+    assert_eq!(status(&c1, 10).env_sessions, 1);
+    // the last worker goes: no other worker within the wait, so the session is lost
+    drop(w1);
+    c2.send(
+        11,
+        Body::EnvStep(paddock_proto::EnvStep {
+            session_id: s2,
+            actions: vec![3; 16],
+            ..Default::default()
+        }),
+    );
+    let e = expect_error(c2.reply_to(11, T));
+    assert!(
+        e.message.contains(&format!("env session {s2} was lost")),
+        "{e:?}"
+    );
+    c2.send(
+        12,
+        Body::EnvStep(paddock_proto::EnvStep {
+            session_id: s2,
+            actions: vec![],
+            ..Default::default()
+        }),
+    );
+    let e = expect_error(c2.reply_to(12, T));
+    assert_eq!(code(&e), ErrorCode::NotFound);
+    assert!(e.message.contains("no other worker"), "{e:?}");
+    let st = status(&c1, 13);
+    assert_eq!(
+        (st.sessions_replayed, st.sessions_lost, st.env_sessions),
+        (1, 1, 0)
+    );
 }
 
 #[test]

@@ -273,8 +273,14 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
         }
     };
     let stop = stop_flag();
-    let broker = BrokerThread::start(&args.bind, "tcp://127.0.0.1:0", &state)?;
-    let (front, back) = (broker.front.clone(), broker.back.clone());
+    // the local workers share the broker's ZeroMQ context and connect over inproc://
+    // (no TCP, no I/O thread between them); the TCP worker endpoint stays open for
+    // remote workers
+    let ctx = paddock_broker::zmq::Context::new();
+    let local = format!("inproc://paddock-serve-workers-{}", std::process::id());
+    let broker =
+        BrokerThread::start_in(&args.bind, "tcp://127.0.0.1:0", &state, ctx.clone(), &local)?;
+    let front = broker.front.clone();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = if args.threads > 0 {
         args.threads
@@ -287,10 +293,10 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
         .unwrap_or_else(|| state.join("worker-maps"));
     let mut workers = Vec::with_capacity(args.workers);
     for _ in 0..args.workers {
-        let mut cfg = WorkerConfig::new(&back);
+        let mut cfg = WorkerConfig::new(&local);
         cfg.threads = threads;
         cfg.maps_dir = maps.clone();
-        workers.push(WorkerThread::spawn(cfg).context("starting a worker")?);
+        workers.push(WorkerThread::spawn_in(cfg, ctx.clone()).context("starting a worker")?);
     }
     let mut remote = Remote::connect(&front)?;
     wait_for_workers(&mut remote, args.workers, Duration::from_secs(30))?;
@@ -320,14 +326,32 @@ pub struct BrokerThread {
 impl BrokerThread {
     /// Binds a broker (port 0: any free port) and starts serving.
     pub fn start(bind: &str, backend: &str, state: &std::path::Path) -> Result<Self> {
+        let cfg = BrokerConfig::new(bind, backend, state);
+        Self::spawn(cfg, paddock_broker::zmq::Context::new())
+    }
+
+    /// [`BrokerThread::start`] in the ZeroMQ context `ctx`, with the worker socket also
+    /// bound to `local` (an `inproc://` endpoint for workers of this process).
+    pub fn start_in(
+        bind: &str,
+        backend: &str,
+        state: &std::path::Path,
+        ctx: paddock_broker::zmq::Context,
+        local: &str,
+    ) -> Result<Self> {
+        let mut cfg = BrokerConfig::new(bind, backend, state);
+        cfg.local_backend = Some(local.to_string());
+        Self::spawn(cfg, ctx)
+    }
+
+    fn spawn(cfg: BrokerConfig, ctx: paddock_broker::zmq::Context) -> Result<Self> {
         let (tx, rx) = std::sync::mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
-        let cfg = BrokerConfig::new(bind, backend, state);
         let handle = std::thread::Builder::new()
             .name("paddock-broker".into())
             .spawn(move || -> Result<()> {
-                let mut broker = match Broker::bind(cfg) {
+                let mut broker = match Broker::bind_in(cfg, ctx) {
                     Ok(b) => b,
                     Err(e) => {
                         let _ = tx.send(Err(anyhow!("starting the broker: {e}")));
@@ -414,6 +438,8 @@ fn status_json(s: &paddock_proto::BrokerStatus) -> serde_json::Value {
         "tasks_done": s.tasks_done,
         "jobs_running": s.jobs_running,
         "env_sessions": s.env_sessions,
+        "sessions_replayed": s.sessions_replayed,
+        "sessions_lost": s.sessions_lost,
         "errors": s.errors,
     })
 }
@@ -442,6 +468,12 @@ pub fn status(args: &StatusArgs) -> Result<()> {
         println!(
             "  {:<36} {:<16} capacity {:>3}  in flight {:>3}  done {:>7}  seen {:.1} s ago",
             w.worker_id, w.hostname, w.capacity, w.in_flight, w.tasks_done, w.last_seen_s
+        );
+    }
+    if s.sessions_replayed + s.sessions_lost > 0 {
+        println!(
+            "  env sessions whose worker died: {} rebuilt on another worker, {} lost",
+            s.sessions_replayed, s.sessions_lost
         );
     }
     if !s.errors.is_empty() {

@@ -1,6 +1,9 @@
 //! Env-step round trips through a broker and a worker on loopback: p50 / p99 latency
 //! of one `EnvStep` -> `EnvObservation` for a session of 1 env and of 64 envs, with the
 //! full 1080-beam scan and with a 1-beam scan (which leaves mostly the transport).
+//! Against `paddock serve` this is the topology Python learners use: the client on TCP,
+//! the worker on `inproc://` in the broker's process. Like a Python client, this one
+//! blocks in `recv` (no spinning).
 //!
 //! ```text
 //! paddock serve --bind tcp://127.0.0.1:5555 &

@@ -20,7 +20,12 @@
 //!   an unknown hash waits while the worker asks the broker for the map, once per hash.
 //! - Bad input never crashes it: a task that fails to decode or validate, or whose
 //!   episode panics, comes back as an error outcome for that task only.
-//! - Env sessions are served by [`sessions::Sessions`].
+//! - Env sessions are served by [`sessions::Sessions`]. An env step is a round trip the
+//!   client waits for, so after answering one the loop polls without blocking for
+//!   [`WorkerConfig::spin`] before it sleeps: on an idle machine a wake-up costs more
+//!   than the step. Only env traffic arms it (rollout results never do).
+//! - A worker in the broker's own process (`paddock serve`) shares the broker's ZeroMQ
+//!   context and connects over `inproc://` ([`Worker::new_in`]): no TCP, no I/O thread.
 
 pub mod liveness;
 pub mod maps;
@@ -84,7 +89,15 @@ pub struct WorkerConfig {
     pub curve: Curve,
     /// Touched at every heartbeat while the broker answers (a container health check).
     pub health_file: Option<PathBuf>,
+    /// After answering an env-session request the loop polls without blocking for this
+    /// long before it sleeps, so the session's next request, when it comes soon, needs
+    /// no thread wake-up. Rollout tasks never arm it; an idle worker never spins. Zero:
+    /// always block.
+    pub spin: Duration,
 }
+
+/// The default [`WorkerConfig::spin`].
+pub const DEFAULT_SPIN: Duration = Duration::from_micros(200);
 
 impl WorkerConfig {
     pub fn new(connect: impl Into<String>) -> Self {
@@ -98,6 +111,7 @@ impl WorkerConfig {
             backoff_max: Duration::from_secs(8),
             curve: Curve::Off,
             health_file: None,
+            spin: DEFAULT_SPIN,
         }
     }
 }
@@ -162,6 +176,8 @@ pub struct Worker {
     next_request: u64,
     /// The broker does not know us (it restarted, or declared us dead): say hello again.
     rehello: bool,
+    /// Poll without blocking until then (armed by env-session traffic).
+    spin_until: Option<Instant>,
     stats: Arc<WorkerStats>,
 }
 
@@ -169,6 +185,13 @@ static WORKER_SEQ: AtomicU64 = AtomicU64::new(0);
 
 impl Worker {
     pub fn new(cfg: WorkerConfig) -> Result<Self, WorkerError> {
+        Self::new_in(cfg, zmq::Context::new())
+    }
+
+    /// [`Worker::new`] in the ZeroMQ context `ctx`: a worker in the broker's own
+    /// process connects to the broker's `inproc://` endpoint through the broker's
+    /// context.
+    pub fn new_in(cfg: WorkerConfig, ctx: zmq::Context) -> Result<Self, WorkerError> {
         let threads = if cfg.threads == 0 {
             std::thread::available_parallelism().map_or(1, |n| n.get())
         } else {
@@ -193,8 +216,10 @@ impl Worker {
             dir: cfg.maps_dir.clone(),
             source,
         })?;
-        let ctx = zmq::Context::new();
-        let endpoint = format!("inproc://paddock-worker-results-{seq}");
+        let endpoint = format!(
+            "inproc://paddock-worker-results-{}-{seq}",
+            std::process::id()
+        );
         let results_rx = ctx.socket(zmq::PULL).map_err(zmq_err("results socket"))?;
         results_rx
             .bind(&endpoint)
@@ -225,6 +250,7 @@ impl Worker {
             in_flight: HashSet::new(),
             next_request: 1,
             rehello: false,
+            spin_until: None,
             stats: Arc::default(),
         })
     }
@@ -314,14 +340,7 @@ impl Worker {
                     .wait(now)
                     .min(Duration::from_millis(100))
                     .max(Duration::from_millis(1));
-                let (sock_in, results_in) = {
-                    let mut items = [
-                        sock.as_poll_item(zmq::POLLIN),
-                        self.results_rx.as_poll_item(zmq::POLLIN),
-                    ];
-                    zmq::poll(&mut items, wait.as_millis() as i64).map_err(zmq_err("poll"))?;
-                    (items[0].is_readable(), items[1].is_readable())
-                };
+                let (sock_in, results_in) = self.wait(&sock, wait)?;
                 if results_in {
                     self.forward_results(&sock, &mut live);
                 }
@@ -376,6 +395,33 @@ impl Worker {
         Ok(())
     }
 
+    /// Whether the broker socket and the results socket have messages: polls without
+    /// blocking while the spin is armed, then waits up to `timeout`.
+    fn wait(&mut self, sock: &zmq::Socket, timeout: Duration) -> Result<(bool, bool), WorkerError> {
+        let poll = |ms: i64| -> Result<(bool, bool), WorkerError> {
+            let mut items = [
+                sock.as_poll_item(zmq::POLLIN),
+                self.results_rx.as_poll_item(zmq::POLLIN),
+            ];
+            zmq::poll(&mut items, ms).map_err(zmq_err("poll"))?;
+            Ok((items[0].is_readable(), items[1].is_readable()))
+        };
+        if let Some(until) = self.spin_until.take() {
+            loop {
+                let ready = poll(0)?;
+                if ready.0 || ready.1 {
+                    return Ok(ready);
+                }
+                if Instant::now() >= until {
+                    break;
+                }
+                // lets a thread this one waits for run, on a machine with few cores
+                std::thread::yield_now();
+            }
+        }
+        poll(timeout.as_millis() as i64)
+    }
+
     fn forward_results(&mut self, sock: &zmq::Socket, live: &mut Liveness) {
         while let Ok(parts) = self.results_rx.recv_multipart(zmq::DONTWAIT) {
             let [id, frame] = parts.as_slice() else {
@@ -418,6 +464,9 @@ impl Worker {
             b @ (Body::EnvOpen(_) | Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_)) => {
                 if let Some(reply) = self.sessions.handle(request_id, b) {
                     self.reply(sock, request_id, reply);
+                }
+                if !self.cfg.spin.is_zero() {
+                    self.spin_until = Some(Instant::now() + self.cfg.spin);
                 }
             }
             other => {
@@ -634,7 +683,12 @@ pub struct WorkerThread {
 impl WorkerThread {
     /// Builds a worker and starts serving on a new thread.
     pub fn spawn(cfg: WorkerConfig) -> Result<Self, WorkerError> {
-        let mut worker = Worker::new(cfg)?;
+        Self::spawn_in(cfg, zmq::Context::new())
+    }
+
+    /// [`WorkerThread::spawn`] in the ZeroMQ context `ctx` (see [`Worker::new_in`]).
+    pub fn spawn_in(cfg: WorkerConfig, ctx: zmq::Context) -> Result<Self, WorkerError> {
+        let mut worker = Worker::new_in(cfg, ctx)?;
         let stop = Arc::new(AtomicBool::new(false));
         let worker_id = worker.worker_id().to_string();
         let stats = worker.stats();

@@ -2,14 +2,19 @@
 //! ("sans-IO"): the server feeds them messages and the current time and carries out
 //! what they decide. Each is unit-tested with a virtual clock.
 
+pub mod replay;
 pub mod scheduler;
 pub mod sessions;
 pub mod workers;
 
 use std::time::Duration;
 
+pub use replay::{EnvRequest, LogLimits, SessionLog};
 pub use scheduler::{Assigned, Busy, Completion, Limits, Scheduler};
-pub use sessions::{Pending, Session, Sessions};
+pub use sessions::{
+    Forwarded, Lost, Orphans, Pending, Queued, ReplayStats, ReplayStep, Session, SessionState,
+    Sessions,
+};
 pub use workers::{Liveness, Tick, WorkerInfo, WorkerKey, Workers};
 
 /// A task's id, unique for the broker's lifetime.

@@ -7,7 +7,8 @@
 //! `Error` reply naming the field and value; it is counted by code (see
 //! `BrokerStatus.errors`) and logged, and the broker goes on serving everyone else.
 //!
-//! The env-session routing lives in `env.rs`, the job runner in `jobs.rs`.
+//! The env-session routing lives in `env.rs`, the job runner in `jobs.rs`, task
+//! dispatch and batch reduction in `tasks.rs`.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::path::PathBuf;
@@ -17,18 +18,18 @@ use std::time::{Duration, Instant};
 use paddock_libzmq::{Authenticator, Curve};
 use paddock_proto::{
     Body, BrokerStatus, ErrorCode, JobInfo, JobListing, JobResult, JobState, MapStored,
-    RolloutProgress, RolloutResult, TaskAssign, TaskOutcome, WorkerStatus, WorkerWelcome,
-    code_name, error, task_outcome,
+    RolloutResult, TaskOutcome, WorkerStatus, WorkerWelcome, code_name, error, task_outcome,
 };
 use prost::Message;
 
 mod env;
 mod jobs;
+mod tasks;
 
 use crate::core::{
-    Assigned, ClientKey, Completion, Dispatcher, Limits, Liveness, Sessions, SourceId, WorkerKey,
+    ClientKey, Completion, Dispatcher, Limits, Liveness, LogLimits, Sessions, SourceId, WorkerKey,
 };
-use crate::jobs::{JobWork, TaskTemplate, batch_tasks, check_batch};
+use crate::jobs::{JobWork, TaskTemplate};
 use crate::state::{JobRecord, Store, StoreError};
 
 /// How to run a broker.
@@ -42,6 +43,9 @@ pub struct BrokerConfig {
     pub state_dir: PathBuf,
     pub liveness: Liveness,
     pub limits: Limits,
+    /// Env-session replay logs: their bounds, and how long a session whose worker died
+    /// waits for another worker to be rebuilt on.
+    pub session_logs: LogLimits,
     /// Larger frames are answered with TOO_LARGE unread.
     pub max_message_bytes: usize,
     /// Most jobs queued or running at once; more are refused with BUSY.
@@ -51,6 +55,15 @@ pub struct BrokerConfig {
     /// CURVE encryption and authentication; None: plain TCP (loopback and trusted
     /// networks only).
     pub security: Option<Security>,
+    /// A second worker endpoint, e.g. `inproc://paddock-workers`, for workers in this
+    /// process sharing the broker's ZeroMQ context (see [`Broker::bind_in`]): no TCP and
+    /// no I/O thread between them, two thread hand-offs fewer per env step.
+    pub local_backend: Option<String>,
+    /// After forwarding env-session traffic the loop polls without blocking for this
+    /// long before it sleeps: the reply (or the client's next step) usually comes
+    /// sooner, and a thread that never slept needs no wake-up. Rollout tasks never arm
+    /// it, and an idle broker never spins. Zero: always block.
+    pub spin: Duration,
 }
 
 /// A broker open to the network: its key pair and, per endpoint, the directory of
@@ -63,6 +76,9 @@ pub struct Security {
     pub worker_keys: PathBuf,
 }
 
+/// The default [`BrokerConfig::spin`].
+pub const DEFAULT_SPIN: Duration = Duration::from_micros(200);
+
 impl BrokerConfig {
     /// The defaults: 1 s heartbeats, 3 missed = dead, 64 MiB messages, 10 ms ticks.
     pub fn new(frontend: &str, backend: &str, state_dir: impl Into<PathBuf>) -> Self {
@@ -72,10 +88,13 @@ impl BrokerConfig {
             state_dir: state_dir.into(),
             liveness: Liveness::default(),
             limits: Limits::default(),
+            session_logs: LogLimits::default(),
             max_message_bytes: paddock_proto::MAX_MESSAGE_BYTES,
             max_jobs: 1000,
             tick: Duration::from_millis(10),
             security: None,
+            local_backend: None,
+            spin: DEFAULT_SPIN,
         }
     }
 }
@@ -149,10 +168,13 @@ pub struct Broker {
     back: zmq::Socket,
     frontend_endpoint: String,
     backend_endpoint: String,
+    /// Poll without blocking until then (armed by env-session traffic).
+    spin_until: Option<Instant>,
     store: Store,
     disp: Dispatcher,
     sessions: Sessions,
-    /// Sessions lost with their worker, for a helpful error.
+    /// Sessions lost for good (with their worker, or a failed replay): why, for a
+    /// helpful error.
     lost_sessions: HashMap<u64, String>,
     sources: HashMap<SourceId, SourceOwner>,
     jobs: BTreeMap<String, RunningJob>,
@@ -220,8 +242,13 @@ impl Broker {
     /// Opens the store in `cfg.state_dir`, binds both sockets and resumes the stored
     /// unfinished jobs.
     pub fn bind(cfg: BrokerConfig) -> Result<Self, BrokerError> {
+        Self::bind_in(cfg, zmq::Context::new())
+    }
+
+    /// [`Broker::bind`] in the ZeroMQ context `ctx`: workers of this process connect to
+    /// [`BrokerConfig::local_backend`] (an `inproc://` endpoint) in the same context.
+    pub fn bind_in(cfg: BrokerConfig, ctx: zmq::Context) -> Result<Self, BrokerError> {
         let store = Store::open(&cfg.state_dir)?;
-        let ctx = zmq::Context::new();
         // the ZAP handler must be in place before the secured sockets bind
         let (auth, front_curve, back_curve) = match &cfg.security {
             None => (None, Curve::Off, Curve::Off),
@@ -244,6 +271,10 @@ impl Broker {
         let (front, frontend_endpoint) =
             router(&ctx, &cfg.frontend, "client endpoint", &front_curve)?;
         let (back, backend_endpoint) = router(&ctx, &cfg.backend, "worker endpoint", &back_curve)?;
+        if let Some(local) = &cfg.local_backend {
+            back.bind(local)
+                .map_err(socket_err("local worker endpoint", local))?;
+        }
         let mut disp = Dispatcher::new(cfg.liveness, cfg.limits);
         // task ids from the clock (microseconds x 4096): a late result for a task of
         // an earlier run of this broker can never match a task of this one
@@ -251,6 +282,7 @@ impl Broker {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_micros() as u64);
         disp.tasks.set_first_task_id(micros.saturating_mul(4096));
+        let session_logs = cfg.session_logs;
         let mut b = Self {
             disp,
             cfg,
@@ -260,8 +292,9 @@ impl Broker {
             back,
             frontend_endpoint,
             backend_endpoint,
+            spin_until: None,
             store,
-            sessions: Sessions::new(),
+            sessions: Sessions::new(session_logs),
             lost_sessions: HashMap::new(),
             sources: HashMap::new(),
             jobs: BTreeMap::new(),
@@ -311,23 +344,7 @@ impl Broker {
     /// Waits up to `timeout` for messages, handles everything that arrived, then runs
     /// the timers and dispatches. (`run` calls this in a loop; tests may drive it.)
     pub fn poll_once(&mut self, timeout: Duration) -> Result<(), BrokerError> {
-        let (front_ready, back_ready) = {
-            let mut items = [
-                self.front.as_poll_item(zmq::POLLIN),
-                self.back.as_poll_item(zmq::POLLIN),
-            ];
-            match zmq::poll(&mut items, timeout.as_millis() as i64) {
-                Ok(_) => (items[0].is_readable(), items[1].is_readable()),
-                Err(zmq::Error::EINTR) => (false, false),
-                Err(e) => {
-                    return Err(BrokerError::Socket {
-                        what: "poll",
-                        endpoint: self.frontend_endpoint.clone(),
-                        source: e,
-                    });
-                }
-            }
-        };
+        let (front_ready, back_ready) = self.wait(timeout)?;
         // bounded drains keep one busy side from starving the other
         if back_ready {
             for _ in 0..1000 {
@@ -353,6 +370,48 @@ impl Broker {
 
     fn now(&self) -> Duration {
         self.started.elapsed()
+    }
+
+    /// Whether each socket has a message: polls without blocking while the spin is
+    /// armed, then waits up to `timeout`.
+    fn wait(&mut self, timeout: Duration) -> Result<(bool, bool), BrokerError> {
+        if let Some(until) = self.spin_until.take() {
+            loop {
+                let ready = self.poll_sockets(0)?;
+                if ready.0 || ready.1 {
+                    return Ok(ready);
+                }
+                if Instant::now() >= until {
+                    break;
+                }
+                // lets a thread this one waits for run, on a machine with few cores
+                std::thread::yield_now();
+            }
+        }
+        self.poll_sockets(timeout.as_millis() as i64)
+    }
+
+    fn poll_sockets(&self, timeout_ms: i64) -> Result<(bool, bool), BrokerError> {
+        let mut items = [
+            self.front.as_poll_item(zmq::POLLIN),
+            self.back.as_poll_item(zmq::POLLIN),
+        ];
+        match zmq::poll(&mut items, timeout_ms) {
+            Ok(_) => Ok((items[0].is_readable(), items[1].is_readable())),
+            Err(zmq::Error::EINTR) => Ok((false, false)),
+            Err(e) => Err(BrokerError::Socket {
+                what: "poll",
+                endpoint: self.frontend_endpoint.clone(),
+                source: e,
+            }),
+        }
+    }
+
+    /// Polls without blocking for [`BrokerConfig::spin`] from now on.
+    fn arm_spin(&mut self) {
+        if !self.cfg.spin.is_zero() {
+            self.spin_until = Some(Instant::now() + self.cfg.spin);
+        }
     }
 
     // ------------------------------------------------------------------ sending
@@ -639,25 +698,8 @@ impl Broker {
             Body::EnvOpened(o) => self.on_env_reply(worker, rid, Body::EnvOpened(o)),
             Body::EnvObservation(o) => self.on_env_reply(worker, rid, Body::EnvObservation(o)),
             Body::EnvClosed(c) => self.on_env_reply(worker, rid, Body::EnvClosed(c)),
-            Body::Error(e) => {
-                // an error from a worker answers a forwarded env request, if any
-                if let Some(p) = self.sessions.reply(&worker, rid) {
-                    *self
-                        .stats
-                        .errors
-                        .entry(code_name(e.code).to_string())
-                        .or_default() += 1;
-                    self.send(Side::Client, &p.client, p.client_request, Body::Error(e));
-                } else {
-                    tracing::warn!(
-                        peer = %hex(&worker),
-                        code = code_name(e.code),
-                        field = %e.field,
-                        message = %e.message,
-                        "worker reported an error"
-                    );
-                }
-            }
+            // an error from a worker answers a forwarded env request, if any
+            Body::Error(e) => self.on_env_reply(worker, rid, Body::Error(e)),
             other => self.wrong_socket(Side::Worker, &worker, rid, &other),
         }
     }
@@ -691,6 +733,7 @@ impl Broker {
             self.worker_gone(key, Vec::new(), "died");
         }
         self.fail_exhausted(requeued.exhausted);
+        self.resume_sessions();
         for key in tick.heartbeat {
             let in_flight = self
                 .disp
@@ -717,166 +760,34 @@ impl Broker {
             let r = self.disp.requeue(tasks);
             self.fail_exhausted(r.exhausted);
         }
-        let orphans = self.sessions.worker_gone(worker);
-        for (sid, _) in &orphans.sessions {
-            self.lost_sessions.insert(
-                *sid,
-                format!("env session {sid} was lost: its worker {how}"),
+        let orphans = self.sessions.worker_gone(worker, self.now());
+        for lost in orphans.lost {
+            self.session_lost(lost);
+        }
+        for sid in &orphans.stalled {
+            tracing::warn!(
+                session = sid,
+                peer = %hex(worker),
+                "env session's worker {how}: it waits to be replayed on another worker"
             );
         }
         for p in orphans.pending {
+            let what = if p.session == 0 {
+                "the env session being opened".to_string()
+            } else {
+                format!("env session {}", p.session)
+            };
             let e = error(
                 ErrorCode::Internal,
                 "session_id",
-                format!(
-                    "env session {} was lost: its worker {how} before answering",
-                    p.session
-                ),
+                format!("{what} was lost: its worker {how} before answering"),
             );
             self.refuse(Side::Client, &p.client, p.client_request, e);
         }
+        self.resume_sessions();
     }
 
-    fn fail_exhausted(&mut self, tasks: Vec<u64>) {
-        let attempts = self.cfg.limits.max_attempts;
-        for t in tasks {
-            let outcome = TaskOutcome {
-                outcome: Some(task_outcome::Outcome::Error(error(
-                    ErrorCode::Internal,
-                    "task",
-                    format!("task {t} was given up after {attempts} workers died running it"),
-                ))),
-            };
-            *self.stats.errors.entry("INTERNAL".into()).or_default() += 1;
-            if let Completion::Accepted {
-                source,
-                finished: true,
-                ..
-            } = self.disp.tasks.complete(t, outcome)
-            {
-                self.finish_source(source);
-            }
-        }
-    }
-
-    // ------------------------------------------------------------------ tasks
-
-    fn dispatch(&mut self) {
-        for (worker, a) in self.disp.dispatch() {
-            self.assign(&worker, &a);
-        }
-    }
-
-    fn assign(&mut self, worker: &[u8], a: &Assigned) {
-        let Some(owner) = self.sources.get(&a.source) else {
-            return;
-        };
-        let t = owner.task(a.index);
-        let msg = TaskAssign {
-            task_id: a.task,
-            scenario: Some((*t.scenario).clone()),
-            seed: t.seed,
-            record_decimation: t.record_decimation,
-        };
-        self.send(Side::Worker, worker, a.task, Body::TaskAssign(msg));
-    }
-
-    fn maybe_progress(&mut self, source: SourceId, done: usize, total: usize) {
-        let Some(SourceOwner::Batch {
-            client,
-            request_id,
-            progress: true,
-            last_progress,
-            ..
-        }) = self.sources.get_mut(&source)
-        else {
-            return;
-        };
-        if last_progress.elapsed() < Duration::from_millis(100) {
-            return;
-        }
-        *last_progress = Instant::now();
-        let (client, rid) = (client.clone(), *request_id);
-        self.send(
-            Side::Client,
-            &client,
-            rid,
-            Body::RolloutProgress(RolloutProgress {
-                done: done as u32,
-                total: total as u32,
-            }),
-        );
-    }
-
-    fn finish_source(&mut self, source: SourceId) {
-        let Some((_, outcomes)) = self.disp.tasks.take_results(source) else {
-            return;
-        };
-        match self.sources.remove(&source) {
-            Some(SourceOwner::Batch {
-                client, request_id, ..
-            }) => {
-                self.send(
-                    Side::Client,
-                    &client,
-                    request_id,
-                    Body::RolloutResult(RolloutResult { outcomes }),
-                );
-            }
-            Some(SourceOwner::Job { job_id, .. }) => self.job_round_done(&job_id, outcomes),
-            None => {}
-        }
-    }
-
-    fn on_batch(&mut self, client: ClientKey, rid: u64, batch: paddock_proto::RolloutBatch) {
-        let scenarios = match check_batch(&batch, &self.store, "rollout_batch") {
-            Ok(s) => s,
-            Err(e) => return self.refuse(Side::Client, &client, rid, e),
-        };
-        let tasks = batch_tasks(&batch, &scenarios);
-        let limit = self
-            .cfg
-            .limits
-            .max_tasks_per_client
-            .min(self.cfg.limits.max_tasks);
-        if tasks.len() > limit {
-            return self.refuse(
-                Side::Client,
-                &client,
-                rid,
-                error(
-                    ErrorCode::InvalidArgument,
-                    "rollout_batch.tasks",
-                    format!(
-                        "{} tasks exceed the {limit} one client may queue: split the batch",
-                        tasks.len()
-                    ),
-                ),
-            );
-        }
-        match self.disp.tasks.submit(&client, tasks.len()) {
-            Ok(source) => {
-                self.sources.insert(
-                    source,
-                    SourceOwner::Batch {
-                        client,
-                        request_id: rid,
-                        tasks,
-                        progress: batch.progress,
-                        last_progress: Instant::now(),
-                    },
-                );
-                // an empty batch is finished already
-                self.finish_source(source);
-            }
-            Err(busy) => self.refuse(
-                Side::Client,
-                &client,
-                rid,
-                error(ErrorCode::Busy, "rollout_batch.tasks", busy.to_string()),
-            ),
-        }
-    }
+    // ------------------------------------------------------------------ maps
 
     fn on_put_map(&mut self, client: ClientKey, rid: u64, p: paddock_proto::PutMap) {
         let Some(bundle) = p.bundle else {
@@ -945,6 +856,8 @@ impl Broker {
             tasks_done: self.stats.tasks_done,
             jobs_running: self.jobs.len() as u32,
             env_sessions: self.sessions.len() as u32,
+            sessions_replayed: self.sessions.stats().replayed,
+            sessions_lost: self.sessions.stats().lost,
             errors: self
                 .stats
                 .errors

@@ -25,9 +25,18 @@ pub struct TestBroker {
 impl TestBroker {
     /// Starts a broker on free loopback ports; `tweak` adjusts the config.
     pub fn start(state: PathBuf, tweak: impl FnOnce(&mut BrokerConfig)) -> Self {
+        Self::start_in(state, zmq::Context::new(), tweak)
+    }
+
+    /// [`TestBroker::start`] in the ZeroMQ context `ctx` (for `inproc://` workers).
+    pub fn start_in(
+        state: PathBuf,
+        ctx: zmq::Context,
+        tweak: impl FnOnce(&mut BrokerConfig),
+    ) -> Self {
         let mut cfg = BrokerConfig::new("tcp://127.0.0.1:0", "tcp://127.0.0.1:0", state);
         tweak(&mut cfg);
-        let mut broker = Broker::bind(cfg).expect("broker binds");
+        let mut broker = Broker::bind_in(cfg, ctx).expect("broker binds");
         let frontend = broker.frontend_endpoint().to_string();
         let backend = broker.backend_endpoint().to_string();
         let stop = Arc::new(AtomicBool::new(false));
@@ -63,7 +72,11 @@ pub struct RawPeer {
 
 impl RawPeer {
     pub fn connect(endpoint: &str) -> Self {
-        let ctx = zmq::Context::new();
+        Self::connect_in(zmq::Context::new(), endpoint)
+    }
+
+    /// [`RawPeer::connect`] in the ZeroMQ context `ctx`.
+    pub fn connect_in(ctx: zmq::Context, endpoint: &str) -> Self {
         let socket = ctx.socket(zmq::DEALER).unwrap();
         socket.set_linger(0).unwrap();
         socket.connect(endpoint).unwrap();
