@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # The Python client (client-py): a venv with pinned dependencies, the package installed
 # in editable mode, and its tests against a real `paddock serve` that the fixtures start
-# on a free loopback port and stop.
+# on a free loopback port and stop. Then the ROS 2 interop tests (bridge/interop): the
+# same binary's `paddock bridge` nodes against Eclipse Cyclone DDS, loopback only.
 #
 #   scripts/python.sh              # build paddock (release), set up the venv, run pytest
-#   scripts/python.sh -k env -x    # extra arguments go to pytest
+#   scripts/python.sh -k env -x    # extra arguments go to the client-py pytest run
 #
 # PADDOCK_VENV overrides the venv (default ~/.cache/paddock/venv); CARGO_TARGET_DIR is
 # honoured; PADDOCK_BIN skips the cargo build and uses that binary.
@@ -13,7 +14,8 @@ cd "$(dirname "$0")/.."
 
 VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
 PY="${PYTHON:-python3}"
-PINS=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0)
+PINS=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0
+      cyclonedds==11.0.1)
 
 if [ ! -x "$VENV/bin/python" ]; then
     echo "python.sh: creating the venv $VENV"
@@ -35,5 +37,6 @@ if [ -z "${PADDOCK_BIN:-}" ]; then
 fi
 export PADDOCK_BIN
 echo "python.sh: testing client-py against $PADDOCK_BIN serve"
-cd client-py
-exec "$VENV/bin/python" -m pytest -q tests "$@"
+(cd client-py && "$VENV/bin/python" -m pytest -q tests "$@")
+echo "python.sh: testing ROS 2 interop of $PADDOCK_BIN bridge against Cyclone DDS"
+exec "$VENV/bin/python" -m pytest -q bridge/interop

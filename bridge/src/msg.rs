@@ -271,6 +271,27 @@ pub struct PoseWithCovarianceStamped {
     pub pose: PoseWithCovariance,
 }
 
+/// geometry_msgs/Transform.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Transform {
+    pub translation: Vector3,
+    pub rotation: Quaternion,
+}
+
+/// geometry_msgs/TransformStamped: `child_frame_id`'s pose in `header.frame_id`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TransformStamped {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub transform: Transform,
+}
+
+/// tf2_msgs/TFMessage: what `/tf` and `/tf_static` carry.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TFMessage {
+    pub transforms: Vec<TransformStamped>,
+}
+
 macro_rules! schema {
     ($main:expr $(, $dep:expr)*) => {
         concat!($main $(, "================================================================================\n", $dep)*)
@@ -325,6 +346,20 @@ impl RosMessage for PoseWithCovarianceStamped {
         "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n",
         "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
         "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n",
+        "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
+    );
+}
+
+impl RosMessage for TFMessage {
+    const PACKAGE: &'static str = "tf2_msgs";
+    const TYPE: &'static str = "TFMessage";
+    const SCHEMA: &'static str = schema!(
+        "geometry_msgs/TransformStamped[] transforms\n",
+        "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n",
+        "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n",
+        "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n",
+        "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n",
+        "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n",
         "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
     );
 }
@@ -437,6 +472,39 @@ mod tests {
         assert!((back.pose.pose.orientation.yaw() - 2.0).abs() < 1e-12);
         assert!(from_cdr::<Odometry>(&b[..b.len() - 8]).is_err());
         assert!(from_cdr::<Odometry>(&[0x00, 0x03, 0, 0, 1]).is_err());
+    }
+
+    #[test]
+    fn tf_message_bytes_match_the_idl_layout() {
+        let m = TFMessage {
+            transforms: vec![TransformStamped {
+                header: Header::new(Time { sec: 1, nanosec: 2 }, "map"),
+                child_frame_id: "base_link".into(),
+                transform: Transform {
+                    translation: Vector3 {
+                        x: 1.5,
+                        y: -2.0,
+                        z: 0.0,
+                    },
+                    rotation: Quaternion::from_yaw(0.5),
+                },
+            }],
+        };
+        let b = to_cdr(&m).unwrap();
+        // sequence length, stamp, "map\0", "base_link\0" + pad to 8, then 7 doubles
+        assert_eq!(&b[4..8], &1u32.to_le_bytes());
+        assert_eq!(&b[16..20], &4u32.to_le_bytes());
+        assert_eq!(&b[20..24], b"map\0");
+        assert_eq!(&b[24..28], &10u32.to_le_bytes());
+        assert_eq!(&b[28..38], b"base_link\0");
+        // doubles align to 8 from the body start (offset 4 in the payload): 38 -> 44
+        assert_eq!(&b[44..52], &1.5f64.to_le_bytes());
+        assert_eq!(b.len(), 44 + 7 * 8);
+        assert_eq!(from_cdr::<TFMessage>(&b).unwrap(), m);
+        assert_eq!(
+            TFMessage::dds_type_name(),
+            "tf2_msgs::msg::dds_::TFMessage_"
+        );
     }
 
     #[test]

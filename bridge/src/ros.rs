@@ -2,12 +2,15 @@
 //! subscriptions over `ros2-client` (RustDDS: pure Rust, no ROS installation needed).
 //!
 //! Defaults are those of f1tenth_system (`/scan`, `/odom`, `/drive`) and f1tenth_gym_ros
-//! (`/initialpose`, `/opp_scan`, `/opp_odom`, `/opp_drive`).
+//! (`/initialpose`, `/opp_scan`, `/opp_odom`, `/opp_drive`, `/tf`, `/tf_static`).
 //!
 //! QoS defaults are chosen to match every peer: our publishers are reliable (a reliable
 //! writer serves both reliable and best-effort readers) and our subscriptions best effort
 //! (a best-effort reader matches both kinds of writer, e.g. a LIDAR driver publishing
-//! with the sensor-data profile). Both are configurable.
+//! with the sensor-data profile). Both are configurable. `/tf_static` is the exception:
+//! tf2 fixes its QoS (reliable, transient local, keep last 1) so that a listener started
+//! later still receives the static transforms, and [`RosNode::static_publisher`] and
+//! [`RosNode::static_subscription`] use exactly that.
 
 use ros2_client::{
     Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher,
@@ -50,6 +53,8 @@ pub struct TopicNames {
     pub opp_scan: String,
     pub opp_odom: String,
     pub opp_drive: String,
+    pub tf: String,
+    pub tf_static: String,
 }
 
 impl Default for TopicNames {
@@ -62,39 +67,82 @@ impl Default for TopicNames {
             opp_scan: "/opp_scan".into(),
             opp_odom: "/opp_odom".into(),
             opp_drive: "/opp_drive".into(),
+            tf: "/tf".into(),
+            tf_static: "/tf_static".into(),
         }
     }
 }
 
-/// Frame ids written into message headers.
+/// Frame ids written into message headers and transforms.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Frames {
-    /// Odometry's `header.frame_id`.
+    /// Odometry's `header.frame_id`, and the parent of the cars' transforms on `/tf`.
     pub odom: String,
     /// The car body: odometry's `child_frame_id` and the drive command's frame.
     pub base: String,
     /// The LIDAR's frame.
     pub laser: String,
+    /// The opponent car's body frame.
+    pub opp_base: String,
+    /// The opponent car's LIDAR frame.
+    pub opp_laser: String,
 }
 
 impl Default for Frames {
+    /// The car's frames (f1tenth_system: VESC odometry `odom` -> `base_link`, LIDAR `laser`).
     fn default() -> Self {
         Self {
             odom: "odom".into(),
             base: "base_link".into(),
             laser: "laser".into(),
+            opp_base: "opp_base_link".into(),
+            opp_laser: "opp_laser".into(),
         }
     }
 }
 
 impl Frames {
-    /// The opponent car's frames: every frame prefixed with `opp_`.
+    /// f1tenth_gym_ros's frames, the SIL car's defaults: the simulator's pose is in the
+    /// `map` frame, and each car's frames carry its namespace.
+    pub fn f1tenth_gym_ros() -> Self {
+        Self {
+            odom: "map".into(),
+            base: "ego_racecar/base_link".into(),
+            laser: "ego_racecar/laser".into(),
+            opp_base: "opp_racecar/base_link".into(),
+            opp_laser: "opp_racecar/laser".into(),
+        }
+    }
+
+    /// The opponent car's frames, as the ego car's would be.
     pub fn opponent(&self) -> Self {
         Self {
             odom: self.odom.clone(),
-            base: format!("opp_{}", self.base),
-            laser: format!("opp_{}", self.laser),
+            base: self.opp_base.clone(),
+            laser: self.opp_laser.clone(),
+            opp_base: self.base.clone(),
+            opp_laser: self.laser.clone(),
         }
+    }
+
+    /// Check that every frame id is a usable tf2 frame (not empty, no leading `/`).
+    pub fn validate(&self) -> Result<(), BridgeError> {
+        for (field, id) in [
+            ("frames.odom", &self.odom),
+            ("frames.base", &self.base),
+            ("frames.laser", &self.laser),
+            ("frames.opp_base", &self.opp_base),
+            ("frames.opp_laser", &self.opp_laser),
+        ] {
+            if id.is_empty() || id.starts_with('/') || id.chars().any(char::is_whitespace) {
+                return Err(BridgeError::config(
+                    field,
+                    format!("{id:?}"),
+                    "a frame id must be non-empty, without whitespace or a leading '/' (tf2)",
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -157,9 +205,12 @@ impl RosConfig {
             ("topics.opp_scan", &t.opp_scan),
             ("topics.opp_odom", &t.opp_odom),
             ("topics.opp_drive", &t.opp_drive),
+            ("topics.tf", &t.tf),
+            ("topics.tf_static", &t.tf_static),
         ] {
             topic_name(field, name)?;
         }
+        self.frames.validate()?;
         for (field, q) in [
             ("publish_qos.depth", &self.publish_qos),
             ("subscribe_qos.depth", &self.subscribe_qos),
@@ -170,6 +221,14 @@ impl RosConfig {
         }
         Ok(())
     }
+}
+
+/// tf2's QoS for `/tf_static`: reliable, transient local, keep last 1.
+fn static_qos() -> QosProfile {
+    QosProfile::publisher_default()
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1 })
+        .reliability_reliable(WhenFull::DEFAULT)
 }
 
 /// Parse a ROS_DOMAIN_ID value.
@@ -259,6 +318,38 @@ impl RosNode {
             })
     }
 
+    /// A publisher of `M` on `topic` with tf2's static QoS (reliable, transient local,
+    /// keep last 1): the last message reaches every subscriber that joins later.
+    pub fn static_publisher<M: RosMessage>(
+        &mut self,
+        topic: &str,
+    ) -> Result<Publisher<M>, BridgeError> {
+        let qos = static_qos();
+        let t = self.topic::<M>(topic, &qos)?;
+        self.node
+            .create_publisher::<M>(&t, Some(qos))
+            .map_err(|e| BridgeError::Ros {
+                what: format!("creating a latched publisher on {topic}"),
+                message: format!("{e:?}"),
+            })
+    }
+
+    /// A subscription with tf2's static QoS: receives what a [`Self::static_publisher`]
+    /// (or a tf2 `StaticTransformBroadcaster`) published before it joined.
+    pub fn static_subscription<M: RosMessage>(
+        &mut self,
+        topic: &str,
+    ) -> Result<Subscription<M>, BridgeError> {
+        let qos = static_qos();
+        let t = self.topic::<M>(topic, &qos)?;
+        self.node
+            .create_subscription::<M>(&t, Some(qos))
+            .map_err(|e| BridgeError::Ros {
+                what: format!("subscribing to {topic} (transient local)"),
+                message: format!("{e:?}"),
+            })
+    }
+
     /// A subscription to `M` on `topic` with the configured subscribe QoS.
     pub fn subscription<M: RosMessage>(
         &mut self,
@@ -335,5 +426,13 @@ mod tests {
         assert_eq!(parse_domain_id(" 42 ").unwrap(), 42);
         assert!(topic_name("t", "/car1/odom").is_ok());
         assert!(topic_name("t", "/scan").is_ok());
+        let mut c = RosConfig::default();
+        c.frames.laser = "/laser".into();
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("frames.laser = \"/laser\""), "{e}");
+        assert!(Frames::f1tenth_gym_ros().validate().is_ok());
+        let opp = Frames::f1tenth_gym_ros().opponent();
+        assert_eq!(opp.base, "opp_racecar/base_link");
+        assert_eq!(opp.odom, "map");
     }
 }

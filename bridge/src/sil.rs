@@ -6,13 +6,26 @@
 //! (ackermann_msgs/AckermannDriveStamped, the newest held until the next) and
 //! `/initialpose` (geometry_msgs/PoseWithCovarianceStamped: the ego car is placed there
 //! and the episode restarts). So `paddock bridge drive`, or any ROS 2 driver, runs
-//! against it unchanged.
+//! against it unchanged. Like f1tenth_gym_ros it also publishes TF: each car's pose as
+//! the transform odometry frame -> body frame on `/tf` (with every odometry message, same
+//! stamp), and the LIDAR mount, body -> laser frame, once on `/tf_static` (transient
+//! local, so RViz or a tf2 listener started later still gets it).
 //!
 //! Physics steps at 100 Hz (the simulator's 0.01 s), paced by the wall clock times
 //! `rate` (1 = real time; tests use a few times real time, and every period below is in
 //! simulated seconds). Scans go out at `scan_hz`, odometry at `odom_hz`. Message stamps
 //! are a wall-clock epoch plus simulated time, so a recording of a faster-than-real-time
 //! run still carries the simulated timeline in its header stamps.
+//!
+//! ## When a command takes effect
+//! Each loop publishes the state at simulated time `t`, waits until the wall clock
+//! reaches `t + dt` (scaled by `rate`), then takes the newest commands and steps the
+//! physics from `t` to `t + dt`. A driver's answer to the state at `t` that arrives
+//! within that wait (one physics period of wall time, 10 ms / `rate`) is applied to the
+//! very next step, as in a rollout where the driver acts on the observation at `t`; one
+//! that arrives later waits a step. (Taking commands before the wait instead, as an
+//! earlier version did, delayed every command by a step, and by two whenever the answer
+//! missed the short window at `--rate 4`.)
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -29,7 +42,8 @@ use crate::BridgeError;
 use crate::drive::DriverSpec;
 use crate::msg::{
     AckermannDriveStamped, Header, LaserScan, Odometry, Point, Pose, PoseWithCovariance,
-    PoseWithCovarianceStamped, Quaternion, Time, Twist, TwistWithCovariance, Vector3,
+    PoseWithCovarianceStamped, Quaternion, TFMessage, Time, Transform, TransformStamped, Twist,
+    TwistWithCovariance, Vector3,
 };
 use crate::ros::{Frames, RosConfig, RosNode, publish, take_latest};
 
@@ -67,6 +81,8 @@ pub struct SilOptions {
     /// Hold the simulation (publishing the start state) until the first `/drive`
     /// message, so a driver's discovery time is not part of its lap.
     pub wait_for_drive: bool,
+    /// Publish the cars' transforms on `/tf` and `/tf_static`.
+    pub tf: bool,
 }
 
 impl Default for SilOptions {
@@ -85,6 +101,7 @@ impl Default for SilOptions {
             opponent: None,
             collision_mode: CollisionMode::Stop,
             wait_for_drive: false,
+            tf: true,
         }
     }
 }
@@ -135,6 +152,8 @@ pub struct SilSummary {
     pub drive_messages: u64,
     pub scans_published: u64,
     pub odoms_published: u64,
+    /// `/tf` messages (one per odometry tick, every car's transform in it).
+    pub tfs_published: u64,
     /// Worst lag behind the wall-clock schedule, s (the schedule restarts after 50 ms).
     pub max_lag_s: f64,
     pub wall_s: f64,
@@ -180,6 +199,39 @@ fn scan_msg(
         range_max: lidar.max_range as f32,
         ranges: obs.scan(i).iter().map(|&r| r as f32).collect(),
         intensities: Vec::new(),
+    }
+}
+
+/// `frames.odom` -> `frames.base`: where the car is, as tf2 wants it.
+fn pose_transform(obs: &Observation, i: usize, stamp: Time, f: &Frames) -> TransformStamped {
+    TransformStamped {
+        header: Header::new(stamp, &f.odom),
+        child_frame_id: f.base.clone(),
+        transform: Transform {
+            translation: Vector3 {
+                x: obs.poses_x[i],
+                y: obs.poses_y[i],
+                z: 0.0,
+            },
+            rotation: Quaternion::from_yaw(obs.poses_theta[i]),
+        },
+    }
+}
+
+/// `frames.base` -> `frames.laser`: the LIDAR sits `mount_offset` ahead of the car's
+/// reference point (the point the pose and the scan's ray casting use).
+fn laser_transform(lidar: &LidarConfig, stamp: Time, f: &Frames) -> TransformStamped {
+    TransformStamped {
+        header: Header::new(stamp, &f.base),
+        child_frame_id: f.laser.clone(),
+        transform: Transform {
+            translation: Vector3 {
+                x: lidar.mount_offset,
+                y: 0.0,
+                z: 0.0,
+            },
+            rotation: Quaternion::default(),
+        },
     }
 }
 
@@ -271,6 +323,19 @@ pub fn run_sil(
         _ => None,
     };
     let pose_sub = node.subscription::<PoseWithCovarianceStamped>(&t.initialpose)?;
+    let tf_pub = if options.tf {
+        let statics = node.static_publisher::<TFMessage>(&t.tf_static)?;
+        let stamp = Time::from_secs(epoch_now());
+        let transforms = cars
+            .iter()
+            .map(|car| laser_transform(&options.lidar, stamp, &car.frames))
+            .collect();
+        publish(&statics, &t.tf_static, TFMessage { transforms });
+        // kept alive with the node: late subscribers get the static transforms from it
+        Some((node.publisher::<TFMessage>(&t.tf)?, statics))
+    } else {
+        None
+    };
     tracing::info!(map = %circuit.name, cars = n, rate = options.rate, domain = ros.domain_id, "SIL car up");
 
     let scan_period = 1.0 / options.scan_hz;
@@ -286,6 +351,7 @@ pub fn run_sil(
         drive_messages: 0,
         scans_published: 0,
         odoms_published: 0,
+        tfs_published: 0,
         max_lag_s: 0.0,
         wall_s: 0.0,
     };
@@ -295,6 +361,16 @@ pub fn run_sil(
                          summary: &mut SilSummary|
      -> Result<(), BridgeError> {
         let obs = world.observation()?;
+        if let Some((tf, _)) = &tf_pub {
+            let transforms = cars
+                .iter()
+                .enumerate()
+                .map(|(i, car)| pose_transform(obs, i, stamp, &car.frames))
+                .collect();
+            if publish(tf, &t.tf, TFMessage { transforms }) {
+                summary.tfs_published += 1;
+            }
+        }
         for (i, car) in cars.iter().enumerate() {
             if publish(
                 &car.odom,
@@ -339,7 +415,8 @@ pub fn run_sil(
         );
     }
 
-    let epoch0 = epoch_now();
+    // stamps are epoch0 + simulated time; a restart moves epoch0 on so they keep rising
+    let mut epoch0 = epoch_now();
     let mut run0 = Instant::now();
     let mut sim_base = 0.0; // sim time at run0 (moves when the schedule restarts)
     let (mut next_scan, mut next_odom) = (0.0, 0.0);
@@ -370,6 +447,21 @@ pub fn run_sil(
         {
             break;
         }
+        // pace: the step from sim_t to sim_t + dt ends at wall time (sim_t + dt) / rate
+        // (since the schedule's base); commands that arrive until then apply to it
+        let target = (sim_t + world.config().dt - sim_base) / options.rate;
+        let elapsed = run0.elapsed().as_secs_f64();
+        if target > elapsed {
+            std::thread::sleep(Duration::from_secs_f64(target - elapsed));
+        } else {
+            let lag = elapsed - target;
+            summary.max_lag_s = summary.max_lag_s.max(lag);
+            if lag > 0.05 {
+                // too far behind: restart the schedule rather than rush to catch up
+                sim_base = sim_t + world.config().dt;
+                run0 = Instant::now();
+            }
+        }
         // commands
         if let Some(m) = take_latest(&drive_sub, &t.drive) {
             actions[0] = Action::new(m.drive.steering_angle as f64, m.drive.speed as f64);
@@ -395,6 +487,8 @@ pub fn run_sil(
             poses[0] = pose;
             match world.reset(options.seed, &Starts::Poses(poses)) {
                 Ok(_) => {
+                    // time restarts at 0: the header clock goes on one step after sim_t
+                    epoch0 += sim_t + world.config().dt;
                     tracing::info!(?pose, "initial pose: episode restarted");
                     summary.lap_times.iter_mut().for_each(Vec::clear);
                     if let Some(d) = &mut opp_driver {
@@ -433,20 +527,6 @@ pub fn run_sil(
                     time = laps[laps.len() - 1],
                     "lap"
                 );
-            }
-        }
-        // pace: simulated time (since the schedule's base) / rate = wall time since run0
-        let target = (world.state()?.time - sim_base) / options.rate;
-        let elapsed = run0.elapsed().as_secs_f64();
-        if target > elapsed {
-            std::thread::sleep(Duration::from_secs_f64(target - elapsed));
-        } else {
-            let lag = elapsed - target;
-            summary.max_lag_s = summary.max_lag_s.max(lag);
-            if lag > 0.05 {
-                // too far behind: restart the schedule rather than rush to catch up
-                sim_base = world.state()?.time;
-                run0 = Instant::now();
             }
         }
     }

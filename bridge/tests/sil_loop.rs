@@ -124,10 +124,13 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
 
     assert_eq!(sil.lap_times[0].len(), 2, "SIL laps: {sil:?}");
     assert_eq!(sil.collision_steps[0], 0);
+    // The SIL applies an answer that arrives within one physics period (2.5 ms wall at
+    // RATE 4) to the next step, as a rollout does, so the laps agree closely; a late
+    // answer under load costs a step, not a systematic delay.
     for (got, want) in sil.lap_times[0].iter().zip(&expected) {
         let rel = (got - want).abs() / want;
         assert!(
-            rel < 0.03,
+            rel < 0.005,
             "lap {got:.3} s vs rollout {want:.3} s ({:.1} %)",
             rel * 1e2
         );
@@ -182,11 +185,12 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
         t0.elapsed().as_secs_f64(),
         analysis.rmse_before
     );
-    // The one mismatch allowed is the bridge's own transport: at --rate 4 a drive command
-    // sometimes reaches the SIL car one physics step after the scan it answers, which
-    // sysid may (correctly) see as a steering delay of one or two 10 ms steps.
+    // The one mismatch allowed is the bridge's own transport: under load a drive command
+    // may miss its step's window and act a step later, which sysid may (correctly) see as
+    // a steering delay of one 10 ms step. (Before the SIL took commands after its pacing
+    // wait, every command acted a step late and some two: regression test for that.)
     let transport_only = analysis.candidates.iter().filter(|c| c.selected).all(|c| {
-        c.evidence.kind.name() == "steering_delay" && c.values.iter().all(|&d| d <= 0.02 + 1e-9)
+        c.evidence.kind.name() == "steering_delay" && c.values.iter().all(|&d| d <= 0.01 + 1e-9)
     });
     assert!(
         transport_only,

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
 use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
-use paddock_bridge::ros::{QosConfig, RosConfig, parse_domain_id};
+use paddock_bridge::ros::{Frames, QosConfig, RosConfig, parse_domain_id};
 use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
 use paddock_sim::collision::CollisionMode;
@@ -18,8 +18,9 @@ use paddock_sim::track::{Circuit, DEFAULT_MAP};
 
 #[derive(Args)]
 pub struct BridgeArgs {
+    // boxed: the node commands' many flags would make `paddock`'s command enum large
     #[command(subcommand)]
-    command: BridgeCommand,
+    command: Box<BridgeCommand>,
 }
 
 #[derive(Subcommand)]
@@ -55,14 +56,29 @@ struct RosArgs {
     opp_odom_topic: String,
     #[arg(long, default_value = "/opp_drive")]
     opp_drive_topic: String,
-    /// Odometry header frame id.
-    #[arg(long, default_value = "odom")]
-    odom_frame: String,
-    /// The car's body frame (odometry child frame, drive commands).
-    #[arg(long, default_value = "base_link")]
-    base_frame: String,
-    #[arg(long, default_value = "laser")]
-    laser_frame: String,
+    /// The SIL car's transforms (tf2's topic).
+    #[arg(long, default_value = "/tf")]
+    tf_topic: String,
+    /// The SIL car's static transforms (transient local, tf2's topic).
+    #[arg(long, default_value = "/tf_static")]
+    tf_static_topic: String,
+    /// Odometry header frame id, the parent of the SIL car's /tf transforms (default:
+    /// `odom` on the car, `map` for the SIL car, as f1tenth_gym_ros).
+    #[arg(long)]
+    odom_frame: Option<String>,
+    /// The car's body frame: odometry child frame, drive commands (default: `base_link`
+    /// on the car, `ego_racecar/base_link` for the SIL car).
+    #[arg(long)]
+    base_frame: Option<String>,
+    /// The LIDAR's frame (default: `laser` on the car, `ego_racecar/laser` for the SIL car).
+    #[arg(long)]
+    laser_frame: Option<String>,
+    /// The opponent's body frame (default `opp_base_link`; SIL `opp_racecar/base_link`).
+    #[arg(long)]
+    opp_base_frame: Option<String>,
+    /// The opponent's LIDAR frame (default `opp_laser`; SIL `opp_racecar/laser`).
+    #[arg(long)]
+    opp_laser_frame: Option<String>,
     /// Publish best effort instead of reliable.
     #[arg(long)]
     publish_best_effort: bool,
@@ -75,7 +91,8 @@ struct RosArgs {
 }
 
 impl RosArgs {
-    fn config(&self) -> Result<RosConfig> {
+    /// The settings, with frame ids from `frames` unless given.
+    fn config(&self, frames: Frames) -> Result<RosConfig> {
         let mut c = RosConfig::from_env()?;
         if let Some(d) = &self.domain_id {
             c.domain_id = parse_domain_id(d).context("--domain-id")?;
@@ -87,9 +104,16 @@ impl RosArgs {
         c.topics.opp_scan = self.opp_scan_topic.clone();
         c.topics.opp_odom = self.opp_odom_topic.clone();
         c.topics.opp_drive = self.opp_drive_topic.clone();
-        c.frames.odom = self.odom_frame.clone();
-        c.frames.base = self.base_frame.clone();
-        c.frames.laser = self.laser_frame.clone();
+        c.topics.tf = self.tf_topic.clone();
+        c.topics.tf_static = self.tf_static_topic.clone();
+        let pick = |given: &Option<String>, default: String| given.clone().unwrap_or(default);
+        c.frames = Frames {
+            odom: pick(&self.odom_frame, frames.odom),
+            base: pick(&self.base_frame, frames.base),
+            laser: pick(&self.laser_frame, frames.laser),
+            opp_base: pick(&self.opp_base_frame, frames.opp_base),
+            opp_laser: pick(&self.opp_laser_frame, frames.opp_laser),
+        };
         c.publish_qos = QosConfig {
             reliable: !self.publish_best_effort,
             depth: self.qos_depth,
@@ -186,6 +210,9 @@ struct SilArgs {
     /// Hold the simulation until the first /drive command.
     #[arg(long)]
     wait_for_drive: bool,
+    /// Do not publish /tf (odometry frame -> each car) and /tf_static (car -> laser).
+    #[arg(long)]
+    no_tf: bool,
     /// Print the summary as JSON.
     #[arg(long)]
     json: bool,
@@ -220,7 +247,7 @@ struct ExportArgs {
 }
 
 pub fn run(args: &BridgeArgs) -> Result<()> {
-    match &args.command {
+    match args.command.as_ref() {
         BridgeCommand::Drive(a) => drive(a),
         BridgeCommand::Sil(a) => sil(a),
         BridgeCommand::Record(a) => rec(a),
@@ -257,7 +284,7 @@ fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
 }
 
 fn drive(a: &DriveArgs) -> Result<()> {
-    let ros = a.ros.config()?;
+    let ros = a.ros.config(Frames::default())?;
     let spec = DriverSpec::resolve(&a.policy, &overrides(a.params.as_deref())?)?;
     let map = a
         .map
@@ -312,7 +339,7 @@ fn drive(a: &DriveArgs) -> Result<()> {
 }
 
 fn sil(a: &SilArgs) -> Result<()> {
-    let ros = a.ros.config()?;
+    let ros = a.ros.config(Frames::f1tenth_gym_ros())?;
     let opponent = match a.opponent.as_deref() {
         None => None,
         Some("ros") => Some(Opponent::Ros),
@@ -343,6 +370,7 @@ fn sil(a: &SilArgs) -> Result<()> {
         opponent,
         collision_mode,
         wait_for_drive: a.wait_for_drive,
+        tf: !a.no_tf,
         ..SilOptions::default()
     };
     let stop = stop_flag()?;
@@ -376,7 +404,7 @@ fn sil(a: &SilArgs) -> Result<()> {
 }
 
 fn rec(a: &RecordArgs) -> Result<()> {
-    let ros = a.ros.config()?;
+    let ros = a.ros.config(Frames::default())?;
     let clock: LogClock = a
         .clock
         .parse()

@@ -106,10 +106,12 @@ enum MapsCommand {
 }
 
 fn main() {
+    // RustDDS warns about every datagram above 1500 bytes (each LIDAR scan): only its
+    // errors unless RUST_LOG asks for more
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,rustdds=error")),
         )
         .with_writer(std::io::stderr)
         .init();
