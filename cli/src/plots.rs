@@ -14,7 +14,8 @@ use paddock_sim::track::Circuit;
 
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
-fn fonts() {
+/// Registers the shipped sans-serif face with plotters (once per process).
+pub(crate) fn fonts() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // the bytes are a valid TrueType face (checked by the plot tests)
@@ -22,7 +23,8 @@ fn fonts() {
     });
 }
 
-fn save_png(path: &Path, buf: Vec<u8>, w: u32, h: u32) -> Result<()> {
+/// Encodes an RGB plot buffer of `w` x `h` pixels as a PNG file.
+pub(crate) fn save_png(path: &Path, buf: Vec<u8>, w: u32, h: u32) -> Result<()> {
     let img = image::RgbImage::from_raw(w, h, buf).context("plot buffer size")?;
     img.save(path)
         .with_context(|| format!("writing {}", path.display()))

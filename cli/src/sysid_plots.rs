@@ -2,32 +2,16 @@
 //! by place on the track, residual by operating regime (PNG, no system fonts).
 
 use std::path::Path;
-use std::sync::Once;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use paddock_sysid::Analysis;
 use paddock_sysid::effects::EffectKind;
 use paddock_sysid::locate::Group;
 use paddock_sysid::recording::Recording;
 use paddock_sysid::replay::Residuals;
 use plotters::prelude::*;
-use plotters::style::{FontStyle, register_font};
 
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
-
-fn fonts() {
-    static ONCE: Once = Once::new();
-    ONCE.call_once(|| {
-        // the bytes are a valid TrueType face (the plot tests decode the PNGs drawn with it)
-        let _ = register_font("sans-serif", FontStyle::Normal, FONT);
-    });
-}
-
-fn save_png(path: &Path, buf: Vec<u8>, w: u32, h: u32) -> Result<()> {
-    let img = image::RgbImage::from_raw(w, h, buf).context("plot buffer size")?;
-    img.save(path)
-        .with_context(|| format!("writing {}", path.display()))
-}
+use crate::plots::{fonts, save_png};
 
 const RECORDED: RGBColor = RGBColor(90, 90, 90);
 const NOMINAL: RGBColor = RGBColor(215, 50, 40);
