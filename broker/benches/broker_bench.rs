@@ -6,9 +6,11 @@
 //!    the worker on TCP (a `paddock worker` process) and on `inproc://` in the broker's
 //!    context (the `paddock serve` topology); the client is always on TCP. Each line
 //!    also gives the voluntary context switches of all threads per step: every one is
-//!    a thread that slept and had to be woken, the main cost on an idle machine;
-//! 2. rollouts/s of the same batch locally (one thread) and through the broker with
-//!    1 and 2 single-threaded in-process workers (one episode per task).
+//!    a thread that slept and had to be woken, the main cost on an idle machine.
+//!
+//! Rollouts/s through the broker against the same batch run locally (the overhead and
+//! the scaling from one to two workers) are measured with real worker processes by
+//! `paddock perf-cluster`, not here.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -20,7 +22,6 @@ use std::time::{Duration, Instant};
 use common::*;
 use paddock_broker::client::Client;
 use paddock_proto::{Body, pack_f32, pack_f64};
-use paddock_rollout::{Executor, LocalExecutor};
 
 const BEAMS: usize = 1080;
 
@@ -183,91 +184,12 @@ fn env_round_trip(num_envs: u32, steps: usize, inproc: bool) {
     worker.join().unwrap();
 }
 
-fn rollouts(episodes: usize) {
-    let (_, map) = lakeside();
-    let b = batch(&map, episodes, 42, 10.0);
-    // the same tasks as domain tasks, for the local executor
-    let dir = paddock_sim::track::Circuit::resolve("lakeside", &[])
-        .unwrap()
-        .dir
-        .clone();
-    let scenario =
-        Arc::new(paddock_proto::convert::scenario_from_proto(&b.scenarios[0], &dir).unwrap());
-    let tasks: Vec<_> = b
-        .tasks
-        .iter()
-        .map(|t| paddock_rollout::EpisodeTask {
-            scenario: scenario.clone(),
-            seed: t.seed,
-            record: paddock_proto::convert::record_from_proto(t.record_decimation),
-        })
-        .collect();
-    // load the map (distance field) before timing
-    let local = run_locally(&batch(&map, 1, 0, 0.1));
-    assert_eq!(local.len(), 1);
-    let local = run_locally(&b);
-    let mut local_rate = 0.0;
-    for threads in [1usize, 2] {
-        let exec = LocalExecutor::new(threads).unwrap();
-        let t0 = Instant::now();
-        exec.run_batch(&tasks, &|_| {});
-        let rate = episodes as f64 / t0.elapsed().as_secs_f64();
-        if threads == 1 {
-            local_rate = rate;
-        }
-        println!("rollouts locally, {threads} thread(s): {rate:>8.1} episodes/s");
-    }
-    for workers in [1usize, 2] {
-        let dir = tempfile::tempdir().unwrap();
-        let cache = tempfile::tempdir().unwrap();
-        let broker = TestBroker::start(dir.path().into(), |_| {});
-        let c = RawPeer::connect(&broker.frontend);
-        put_lakeside(&c);
-        let ws: Vec<TestWorker> = (0..workers)
-            .map(|i| {
-                TestWorker::spawn(
-                    &broker.backend,
-                    WorkerOpts {
-                        capacity: 2,
-                        id: format!("w{i}"),
-                        ..Default::default()
-                    },
-                    cache.path().join(i.to_string()),
-                )
-            })
-            .collect();
-        for w in &ws {
-            w.wait_welcomed();
-        }
-        // warm the workers' map caches
-        c.send(1, Body::RolloutBatch(batch(&map, 2 * workers, 1, 0.1)));
-        c.reply_to(1, Duration::from_secs(60));
-        let t0 = Instant::now();
-        c.send(2, Body::RolloutBatch(b.clone()));
-        let got = match c.reply_to(2, Duration::from_secs(600)) {
-            Body::RolloutResult(r) => r.outcomes,
-            other => panic!("expected rollout_result, got {other:?}"),
-        };
-        let rate = episodes as f64 / t0.elapsed().as_secs_f64();
-        assert_eq!(got, local, "remote == local");
-        println!(
-            "rollouts via broker, {workers} worker(s): {rate:>6.1} episodes/s  (x{:.3} of local 1 thread)",
-            rate / local_rate
-        );
-    }
-}
-
 fn main() {
     // `cargo test --benches` runs this with --bench absent: keep that quick
     let quick = !std::env::args().any(|a| a == "--bench");
-    let (steps, episodes) = if quick { (50, 8) } else { (5000, 200) };
-    // `cargo bench -p paddock-broker -- env` runs only the round trips
-    let only_env = std::env::args().skip(1).any(|a| a == "env");
+    let steps = if quick { 50 } else { 5000 };
     for inproc in [false, true] {
         env_round_trip(1, steps, inproc);
         env_round_trip(64, steps, inproc);
-    }
-    if !only_env {
-        rollouts(episodes);
     }
 }

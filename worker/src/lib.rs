@@ -16,8 +16,10 @@
 //!   new socket and exponential backoff ([`liveness::Backoff`]). Results of tasks that
 //!   finish while it is away are sent on the new connection; the broker drops those it
 //!   already re-ran (late duplicates, by task id).
-//! - Maps travel by content hash and are kept on disk ([`maps::MapCache`]); a task for
-//!   an unknown hash waits while the worker asks the broker for the map, once per hash.
+//! - Maps travel by content hash and are kept on disk ([`maps::MapCache`]); a task or
+//!   an env open for an unknown hash waits while the worker asks the broker for the
+//!   map, once per hash (an env session on a container worker runs on a map a client
+//!   uploaded, and so does the broker's replay of a lost session on another worker).
 //! - Bad input never crashes it: a task that fails to decode or validate, or whose
 //!   episode panics, comes back as an error outcome for that task only.
 //! - Env sessions are served by [`sessions::Sessions`]. An env step is a round trip the
@@ -39,7 +41,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use paddock_proto::convert::{outcome_to_proto, task_from_assign};
-use paddock_proto::{Body, ErrorCode, TaskAssign, TaskOutcome, TaskResult, error};
+use paddock_proto::{Body, EnvOpen, ErrorCode, TaskAssign, TaskOutcome, TaskResult, error};
 use paddock_sim::track::Circuit;
 
 use crate::liveness::{Backoff, Liveness};
@@ -169,6 +171,8 @@ pub struct Worker {
     sessions: Sessions,
     /// Tasks waiting for their map, by map hash.
     waiting: HashMap<String, Vec<(u64, TaskAssign)>>,
+    /// Env opens waiting for their map, by map hash (lower case), with their request ids.
+    waiting_opens: HashMap<String, Vec<(u64, EnvOpen)>>,
     /// Map requests in flight: request id -> hash.
     map_requests: HashMap<u64, String>,
     requested: HashSet<String>,
@@ -216,6 +220,8 @@ impl Worker {
             dir: cfg.maps_dir.clone(),
             source,
         })?;
+        let mut sessions = Sessions::new();
+        sessions.set_map_cache(cache.clone());
         let endpoint = format!(
             "inproc://paddock-worker-results-{}-{seq}",
             std::process::id()
@@ -241,10 +247,11 @@ impl Worker {
             pool,
             results_rx,
             results_tx: Arc::new(Mutex::new(results_tx)),
+            sessions,
             cache,
             circuits: Arc::default(),
-            sessions: Sessions::new(),
             waiting: HashMap::new(),
+            waiting_opens: HashMap::new(),
             map_requests: HashMap::new(),
             requested: HashSet::new(),
             in_flight: HashSet::new(),
@@ -322,8 +329,10 @@ impl Worker {
             let mut live = Liveness::new(self.cfg.heartbeat, self.cfg.liveness, Instant::now());
             let mut last_hello = Instant::now();
             self.rehello = false;
-            // tasks waiting for a map were requeued by the broker when it lost us
+            // tasks waiting for a map were requeued by the broker when it lost us, and
+            // the env opens waiting for one were answered by it (or replayed elsewhere)
             self.waiting.clear();
+            self.waiting_opens.clear();
             self.map_requests.clear();
             self.requested.clear();
             loop {
@@ -455,19 +464,24 @@ impl Worker {
             }
             Body::Heartbeat(_) => {}
             Body::TaskAssign(t) => self.on_task(sock, request_id, t),
-            Body::MapBundle(b) => self.on_map(request_id, b),
+            Body::MapBundle(b) => self.on_map(sock, request_id, b),
             Body::Bye(b) => {
                 tracing::info!(reason = %b.reason, "broker said bye");
                 // treat as silence: the loop reconnects once the beats run out
             }
-            Body::Error(e) => self.on_error(request_id, e),
-            b @ (Body::EnvOpen(_) | Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_)) => {
-                if let Some(reply) = self.sessions.handle(request_id, b) {
-                    self.reply(sock, request_id, reply);
+            Body::Error(e) => self.on_error(sock, request_id, e),
+            Body::EnvOpen(o) => match self.sessions.missing_map(&o) {
+                Some(hash) => {
+                    self.waiting_opens
+                        .entry(hash.clone())
+                        .or_default()
+                        .push((request_id, o));
+                    self.request_map(sock, hash);
                 }
-                if !self.cfg.spin.is_zero() {
-                    self.spin_until = Some(Instant::now() + self.cfg.spin);
-                }
+                None => self.on_env(sock, request_id, Body::EnvOpen(o)),
+            },
+            b @ (Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_)) => {
+                self.on_env(sock, request_id, b);
             }
             other => {
                 self.stats.bad_messages.fetch_add(1, Ordering::Relaxed);
@@ -483,6 +497,48 @@ impl Worker {
                     )),
                 );
             }
+        }
+    }
+
+    /// Answers an env-session request and arms the spin (see [`WorkerConfig::spin`]).
+    fn on_env(&mut self, sock: &zmq::Socket, request_id: u64, body: Body) {
+        if let Some(reply) = self.sessions.handle(request_id, body) {
+            self.reply(sock, request_id, reply);
+        }
+        if !self.cfg.spin.is_zero() {
+            self.spin_until = Some(Instant::now() + self.cfg.spin);
+        }
+    }
+
+    /// Asks the broker for the map `hash` unless a request for it is in flight.
+    fn request_map(&mut self, sock: &zmq::Socket, hash: String) {
+        if self.requested.insert(hash.clone()) {
+            self.stats.maps_requested.fetch_add(1, Ordering::Relaxed);
+            let id = self.request_id();
+            self.map_requests.insert(id, hash.clone());
+            self.reply(
+                sock,
+                id,
+                Body::MapRequest(paddock_proto::MapRequest { hash }),
+            );
+        }
+    }
+
+    /// Answers the env opens that waited for the map `hash`, which could not be had, with
+    /// an error naming the hash and why.
+    /// The error keeps the code of the failure it reports (`NOT_FOUND` when the broker
+    /// has no such map).
+    fn fail_opens(&mut self, sock: &zmq::Socket, hash: &str, code: i32, why: &str) {
+        let code = ErrorCode::try_from(code).unwrap_or(ErrorCode::NotFound);
+        for (rid, _) in self.waiting_opens.remove(hash).unwrap_or_default() {
+            let e = error(
+                code,
+                "env_open.map.hash",
+                format!(
+                    "env_open.map.hash = {hash}: the map is not on this worker and fetching it from the broker failed: {why}"
+                ),
+            );
+            self.reply(sock, rid, Body::Error(e));
         }
     }
 
@@ -534,27 +590,23 @@ impl Worker {
             .entry(hash.clone())
             .or_default()
             .push((request_id, t));
-        if self.requested.insert(hash.clone()) {
-            self.stats.maps_requested.fetch_add(1, Ordering::Relaxed);
-            let id = self.request_id();
-            self.map_requests.insert(id, hash.clone());
-            self.reply(
-                sock,
-                id,
-                Body::MapRequest(paddock_proto::MapRequest { hash }),
-            );
-        }
+        self.request_map(sock, hash);
     }
 
-    fn on_map(&mut self, request_id: u64, bundle: paddock_proto::MapBundle) {
+    fn on_map(&mut self, sock: &zmq::Socket, request_id: u64, bundle: paddock_proto::MapBundle) {
         self.map_requests.remove(&request_id);
         let hash = bundle.hash.clone();
         self.requested.remove(&hash);
         let waiting = self.waiting.remove(&hash).unwrap_or_default();
+        let lower = hash.to_ascii_lowercase();
         match self.cache.store(&bundle) {
             Ok(dir) => {
                 for (rid, t) in waiting {
                     self.spawn(rid, t, dir.clone());
+                }
+                // the sessions find the map in the cache now
+                for (rid, o) in self.waiting_opens.remove(&lower).unwrap_or_default() {
+                    self.on_env(sock, rid, Body::EnvOpen(o));
                 }
             }
             Err(e) => {
@@ -564,18 +616,23 @@ impl Worker {
                     let tx = self.results_tx.clone();
                     push_result(&tx, rid, t.task_id, error_outcome(e.clone()));
                 }
+                let why = format!("its bundle was refused: {} ({})", e.message, e.field);
+                self.fail_opens(sock, &lower, e.code, &why);
             }
         }
     }
 
-    fn on_error(&mut self, request_id: u64, e: paddock_proto::Error) {
+    fn on_error(&mut self, sock: &zmq::Socket, request_id: u64, e: paddock_proto::Error) {
         if let Some(hash) = self.map_requests.remove(&request_id) {
-            // the broker has no such map: every task waiting for it fails with that error
+            // the broker has no such map: every task and env open waiting for it fails
+            // with that error
             self.requested.remove(&hash);
             for (rid, t) in self.waiting.remove(&hash).unwrap_or_default() {
                 self.stats.task_errors.fetch_add(1, Ordering::Relaxed);
                 push_result(&self.results_tx, rid, t.task_id, error_outcome(e.clone()));
             }
+            let why = format!("the broker answered: {} ({})", e.message, e.field);
+            self.fail_opens(sock, &hash.to_ascii_lowercase(), e.code, &why);
         } else if e.code == ErrorCode::NotFound as i32 && e.field == "worker_id" {
             self.rehello = true;
         } else {

@@ -13,7 +13,9 @@
 //! - Maps are named by content hash. The hash is looked up in the worker's map cache
 //!   (`set_map_cache`); failing that, the map the name resolves to on this machine is
 //!   used when its files have that very hash (a `paddock serve` worker beside the
-//!   client), else the request is refused with `NOT_FOUND`.
+//!   client), else the request is refused with `NOT_FOUND`. The worker asks
+//!   [`Sessions::missing_map`] first and fetches a missing map from the broker before
+//!   it hands the open over, as it does for rollout tasks.
 //! - A panic inside a session (a bug) must not take the worker down: it becomes an
 //!   `INTERNAL` error and that session is closed.
 
@@ -286,9 +288,36 @@ impl Sessions {
                 format!("map.hash = {:?} is not a hex SHA-256", m.hash),
             ));
         }
+        self.find_map(m).ok_or_else(|| {
+            error(
+                ErrorCode::NotFound,
+                "map.hash",
+                format!(
+                    "map {:?} with hash {} is not on this worker",
+                    m.name,
+                    m.hash.to_ascii_lowercase()
+                ),
+            )
+        })
+    }
+
+    /// The hash (lower case) of the map `o` names when it is a well-formed hash of a map
+    /// this worker does not hold, so the worker can fetch it before the open runs;
+    /// `None` when the map is here or the request is malformed (the open reports that).
+    pub fn missing_map(&mut self, o: &EnvOpen) -> Option<String> {
+        let m = o.map.as_ref().filter(|m| is_hash(&m.hash))?;
+        match self.find_map(m) {
+            Some(_) => None,
+            None => Some(m.hash.to_ascii_lowercase()),
+        }
+    }
+
+    /// The directory of a map with a well-formed hash: the cache's, else the local map
+    /// of that name when its files have that hash.
+    fn find_map(&mut self, m: &paddock_proto::MapRef) -> Option<PathBuf> {
         let hash = m.hash.to_ascii_lowercase();
         if let Some(dir) = self.maps.as_ref().and_then(|c| c.get(&hash)) {
-            return Ok(dir);
+            return Some(dir);
         }
         if !self.local.contains_key(&m.name)
             && let Ok(c) = Circuit::resolve(&m.name, &[])
@@ -297,12 +326,8 @@ impl Sessions {
             self.local.insert(m.name.clone(), (b.hash, c.dir.clone()));
         }
         match self.local.get(&m.name) {
-            Some((h, dir)) if *h == hash => Ok(dir.clone()),
-            _ => Err(error(
-                ErrorCode::NotFound,
-                "map.hash",
-                format!("map {:?} with hash {hash} is not on this worker", m.name),
-            )),
+            Some((h, dir)) if *h == hash => Some(dir.clone()),
+            _ => None,
         }
     }
 }

@@ -325,3 +325,156 @@ fn says_hello_again_to_a_restarted_broker_that_does_not_know_it() {
     );
     worker.stop().unwrap();
 }
+
+fn env_open(map: paddock_proto::MapRef, num_envs: u32) -> paddock_proto::EnvOpen {
+    paddock_proto::EnvOpen {
+        map: Some(map),
+        num_envs,
+        seed: 3,
+        lidar: Some(paddock_proto::Lidar {
+            num_beams: 48,
+            fov: 4.7,
+            max_range: 30.0,
+            noise_std: 0.01,
+            mount_offset: 0.0,
+        }),
+        laps: 1,
+        time_limit: 30.0,
+        frame_skip: 1,
+        ..Default::default()
+    }
+}
+
+/// Reset with seeds 1..=n, then two steps; the observations.
+fn drive(mut call: impl FnMut(Body) -> Body, session_id: u64, n: u32) -> Vec<Body> {
+    let actions = paddock_proto::pack_f32(
+        &(0..n)
+            .flat_map(|i| [0.05 * i as f32, 2.5])
+            .collect::<Vec<_>>(),
+    );
+    let mut out = vec![call(Body::EnvReset(paddock_proto::EnvReset {
+        session_id,
+        seeds: (1..=u64::from(n)).collect(),
+        ..Default::default()
+    }))];
+    for _ in 0..2 {
+        out.push(call(Body::EnvStep(paddock_proto::EnvStep {
+            session_id,
+            actions: actions.clone(),
+            reset_envs: vec![],
+        })));
+    }
+    out
+}
+
+#[test]
+fn env_opens_wait_for_a_map_the_worker_lacks_and_ask_for_it_once() {
+    let broker = FakeBroker::new();
+    let maps = tempfile::tempdir().unwrap();
+    let worker = WorkerThread::spawn(config(&broker.endpoint, maps.path())).unwrap();
+    let (wid, _, hello) = broker.recv();
+    assert!(matches!(hello, Body::WorkerHello(_)), "{hello:?}");
+
+    // the shipped map under a name that resolves to nothing on this machine: only the
+    // broker can supply it
+    let mut bundle = local_map("lakeside").unwrap();
+    bundle.name = "uploaded-copy".into();
+    let uploaded = map_ref(&bundle);
+    broker.send(&wid, 200, Body::EnvOpen(env_open(uploaded.clone(), 2)));
+    broker.send(&wid, 201, Body::EnvOpen(env_open(uploaded.clone(), 1)));
+    // one map request for both opens, and nothing answered before the map is here
+    let (_, map_req_id, body) = broker.recv();
+    let Body::MapRequest(req) = body else {
+        panic!("expected a map request, got {body:?}");
+    };
+    assert_eq!(req.hash, bundle.hash);
+    broker.send(&wid, map_req_id, Body::MapBundle(bundle.clone()));
+    let mut opened = Vec::new();
+    for want in [200, 201] {
+        let (_, rid, body) = broker.recv();
+        assert_eq!(rid, want);
+        let Body::EnvOpened(o) = body else {
+            panic!("expected env_opened for request {want}, got {body:?}");
+        };
+        opened.push(o);
+    }
+    assert_eq!((opened[0].num_envs, opened[1].num_envs), (2, 1));
+
+    // the same session on a worker that has the map locally (by its shipped name)
+    let mut local = paddock_worker::sessions::Sessions::new();
+    let Some(Body::EnvOpened(here)) = local.handle(
+        1,
+        Body::EnvOpen(env_open(map_ref(&local_map("lakeside").unwrap()), 2)),
+    ) else {
+        panic!("the shipped map opens locally");
+    };
+    let mut rid = 210;
+    let remote = drive(
+        |b| {
+            rid += 1;
+            broker.send(&wid, rid, b);
+            let (_, got, body) = broker.recv();
+            assert_eq!(got, rid);
+            body
+        },
+        opened[0].session_id,
+        2,
+    );
+    let expected = drive(|b| local.handle(1, b).unwrap(), here.session_id, 2);
+    for (k, (r, l)) in remote.iter().zip(&expected).enumerate() {
+        let (Body::EnvObservation(r), Body::EnvObservation(l)) = (r, l) else {
+            panic!("request {k}: expected observations, got {r:?} and {l:?}");
+        };
+        assert_eq!(r.scans, l.scans, "request {k}: scans");
+        assert_eq!(r.states, l.states, "request {k}: states");
+        assert_eq!(r.rewards, l.rewards, "request {k}: rewards");
+        assert_eq!(r.time, l.time, "request {k}: time");
+    }
+
+    // a hash the broker does not have either: both opens get an error naming it
+    let missing = paddock_proto::MapRef {
+        hash: "ab".repeat(32),
+        name: "nowhere".into(),
+    };
+    broker.send(&wid, 300, Body::EnvOpen(env_open(missing.clone(), 1)));
+    broker.send(&wid, 301, Body::EnvOpen(env_open(missing.clone(), 1)));
+    let (_, map_req_id, body) = broker.recv();
+    let Body::MapRequest(req) = body else {
+        panic!("expected a map request, got {body:?}");
+    };
+    assert_eq!(req.hash, missing.hash);
+    broker.send(
+        &wid,
+        map_req_id,
+        Body::Error(paddock_proto::error(
+            ErrorCode::NotFound,
+            "map_request.hash",
+            format!("map hash {:?} is not stored in this broker", missing.hash),
+        )),
+    );
+    for want in [300, 301] {
+        let (_, rid, body) = broker.recv();
+        assert_eq!(rid, want);
+        let Body::Error(e) = body else {
+            panic!("expected an error for request {want}, got {body:?}");
+        };
+        assert_eq!(
+            (e.code, e.field.as_str()),
+            (ErrorCode::NotFound as i32, "env_open.map.hash")
+        );
+        assert!(e.message.contains(&missing.hash), "{}", e.message);
+        assert!(
+            e.message.contains("not stored in this broker"),
+            "{}",
+            e.message
+        );
+    }
+    assert_eq!(
+        worker
+            .stats
+            .maps_requested
+            .load(std::sync::atomic::Ordering::Relaxed),
+        2
+    );
+    worker.stop().unwrap();
+}
