@@ -72,15 +72,8 @@ impl DriverSpec {
     }
 
     fn from_tune_result(path: &Path, overrides: &[(String, f64)]) -> Result<Self, BridgeError> {
-        let shown = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|error| BridgeError::Io {
-            path: shown.clone(),
-            error,
-        })?;
-        let bad = |message: String| BridgeError::Format {
-            path: shown.clone(),
-            message,
-        };
+        let text = std::fs::read_to_string(path).map_err(|e| BridgeError::io(path, e))?;
+        let bad = |message: String| BridgeError::format(path, message);
         let v: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
         let name = v["policy"].as_str().ok_or_else(|| {

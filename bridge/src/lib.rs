@@ -54,6 +54,22 @@ pub enum BridgeError {
 }
 
 impl BridgeError {
+    /// An I/O error on the file `path`.
+    pub fn io(path: &std::path::Path, error: std::io::Error) -> Self {
+        Self::Io {
+            path: path.display().to_string(),
+            error,
+        }
+    }
+
+    /// A file `path` whose contents are not what they should be.
+    pub fn format(path: &std::path::Path, message: String) -> Self {
+        Self::Format {
+            path: path.display().to_string(),
+            message,
+        }
+    }
+
     /// A configuration error naming `field`, its `value` and why it is wrong.
     pub fn config(field: &str, value: impl Display, reason: &str) -> Self {
         Self::Config {

@@ -20,6 +20,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use paddock_sim::geometry::wrap_angle as wrap_pi;
 use ros2_client::Subscription;
 
 use crate::BridgeError;
@@ -240,10 +241,7 @@ pub fn record(
         return Err(BridgeError::config("seconds", s, "must be > 0"));
     }
     let shown = out.display().to_string();
-    let file = File::create(out).map_err(|error| BridgeError::Io {
-        path: shown.clone(),
-        error,
-    })?;
+    let file = File::create(out).map_err(|e| BridgeError::io(out, e))?;
     let mut bag = McapBag::new(BufWriter::new(file), &shown)?;
     let t = &ros.topics;
     bag.add_topic::<LaserScan>(&t.scan)?;
@@ -270,10 +268,7 @@ pub fn record(
         std::thread::sleep(Duration::from_millis(1));
     }
     let mut w = bag.finish()?;
-    w.flush().map_err(|error| BridgeError::Io {
-        path: shown.clone(),
-        error,
-    })?;
+    w.flush().map_err(|e| BridgeError::io(out, e))?;
     let messages = BTreeMap::from([
         (t.scan.clone(), n_scan),
         (t.odom.clone(), n_odom),
@@ -303,24 +298,10 @@ pub struct GapRow {
 /// The CSV header of the reality-gap layout.
 pub const GAP_CSV_HEADER: &str = "t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate";
 
-/// Wrap an angle to [-pi, pi).
-pub fn wrap_pi(a: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w >= PI { w - TAU } else { w }
-}
-
 /// Read the drive and odometry topics of an MCAP file into reality-gap rows.
 pub fn read_gap_rows(path: &Path, topics: &TopicNames) -> Result<Vec<GapRow>, BridgeError> {
-    let shown = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|error| BridgeError::Io {
-        path: shown.clone(),
-        error,
-    })?;
-    let bad = |message: String| BridgeError::Format {
-        path: shown.clone(),
-        message,
-    };
+    let bytes = std::fs::read(path).map_err(|e| BridgeError::io(path, e))?;
+    let bad = |message: String| BridgeError::format(path, message);
     let stream =
         mcap::MessageStream::new(&bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))?;
     let mut drive: Vec<(u64, f64, f64)> = Vec::new();
@@ -397,11 +378,7 @@ pub fn read_gap_rows(path: &Path, topics: &TopicNames) -> Result<Vec<GapRow>, Br
 /// Export an MCAP recording to the reality-gap CSV `out`; returns the rows written.
 pub fn export_csv(mcap: &Path, out: &Path, topics: &TopicNames) -> Result<usize, BridgeError> {
     let rows = read_gap_rows(mcap, topics)?;
-    let shown = out.display().to_string();
-    let io = |error| BridgeError::Io {
-        path: shown.clone(),
-        error,
-    };
+    let io = |e| BridgeError::io(out, e);
     let mut w = BufWriter::new(File::create(out).map_err(io)?);
     writeln!(w, "{GAP_CSV_HEADER}").map_err(io)?;
     for r in &rows {

@@ -88,12 +88,8 @@ impl Default for McapTopics {
     }
 }
 
-/// Wrap an angle to [-pi, pi).
-pub fn wrap_pi(a: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w >= PI { w - TAU } else { w }
-}
+/// Wrap an angle to [-pi, pi): the simulator's own wrap.
+pub use paddock_sim::geometry::wrap_angle as wrap_pi;
 
 impl Recording {
     /// Load a `.csv` or `.mcap` file (by extension; anything else is read as CSV).
