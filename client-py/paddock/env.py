@@ -28,7 +28,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from . import errors
+from . import errors, wire
 from ._proto import paddock_pb2 as pb
 from .server import LocalServer
 from .transport import Connection
@@ -77,7 +77,7 @@ class Frame:
                 "steering_angles": self.states[:, :, 6]}
 
 
-def _frombuffer(data: bytes, dtype: str, shape: tuple[int, ...], field: str) -> np.ndarray:
+def _frombuffer(data: bytes | memoryview, dtype: str, shape: tuple[int, ...], field: str) -> np.ndarray:
     want = math.prod(shape) * np.dtype(dtype).itemsize
     if len(data) != want:
         raise errors.BadMessage(1, f"env_observation.{field}",
@@ -135,7 +135,7 @@ class EnvSession:
         self.max_range = float(max_range)
         self.closed = False
 
-    def _frame(self, o: pb.EnvObservation) -> Frame:
+    def _frame(self, o: pb.EnvObservation | wire.Observation) -> Frame:
         n, a, b = self.num_envs, self.num_agents, self.num_beams
         return Frame(
             scans=_frombuffer(o.scans, "<f4", (n, 1, b), "scans"),

@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable
 import zmq
 from google.protobuf.message import DecodeError, Message
 
-from . import errors
+from . import errors, wire
 from ._proto import paddock_pb2 as pb
 from .maps import MapBundle, read_bundle
 
@@ -114,8 +114,11 @@ class Connection:
             raise errors.BrokerUnavailable(self.endpoint, self.timeout, field) from e
         return rid
 
-    def receive(self, rid: int, what: str, timeout: float | None = None) -> tuple[str, Message]:
-        """The next reply to request ``rid`` as (body name, message)."""
+    def receive(self, rid: int, what: str,
+                timeout: float | None = None) -> tuple[str, Message | wire.Observation]:
+        """The next reply to request ``rid`` as (body name, message); an env observation
+        comes as a :class:`paddock.wire.Observation` over the received frame (the same
+        field names as the protobuf message, bytes fields as views)."""
         assert self._sock is not None
         limit = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + limit
@@ -126,10 +129,16 @@ class Connection:
                 self.close()
                 self._connect()
                 raise errors.BrokerUnavailable(self.endpoint, limit, what)
-            frame = self._sock.recv()
+            # no copy out of ZeroMQ's message: an env observation's arrays are views of it
+            frame = self._sock.recv(copy=False)
+            fast = wire.env_observation(frame.buffer)
+            if fast is not None:
+                if fast[1] != rid:
+                    continue  # the reply to a request its caller gave up on
+                return "env_observation", fast[2]
             env = pb.Envelope()
             try:
-                env.ParseFromString(frame)
+                env.ParseFromString(frame.bytes)
             except DecodeError:
                 continue
             if env.request_id != rid:
@@ -144,7 +153,7 @@ class Connection:
 
     def request(self, field: str, msg: Message, expect: str | Iterable[str],
                 timeout: float | None = None,
-                on_other: Callable[[str, Message], None] | None = None) -> Message:
+                on_other: Callable[[str, Message], None] | None = None) -> Message | wire.Observation:
         """Send ``msg`` as body ``field`` and return the reply whose body is ``expect``;
         other bodies with the same id (progress) go to ``on_other``."""
         wanted = {expect} if isinstance(expect, str) else set(expect)

@@ -24,6 +24,7 @@ use prost::Message;
 
 mod env;
 mod jobs;
+mod spin;
 mod tasks;
 
 use crate::core::{
@@ -61,8 +62,10 @@ pub struct BrokerConfig {
     pub local_backend: Option<String>,
     /// After forwarding env-session traffic the loop polls without blocking for this
     /// long before it sleeps: the reply (or the client's next step) usually comes
-    /// sooner, and a thread that never slept needs no wake-up. Rollout tasks never arm
-    /// it, and an idle broker never spins. Zero: always block.
+    /// sooner, and a thread that never slept needs no wake-up. It spins only for a side
+    /// (workers, clients) whose last answer came within this window, so a long step
+    /// does not take a core from the worker's threads. Rollout tasks never arm it, and
+    /// an idle broker never spins. Zero: always block.
     pub spin: Duration,
 }
 
@@ -168,8 +171,8 @@ pub struct Broker {
     back: zmq::Socket,
     frontend_endpoint: String,
     backend_endpoint: String,
-    /// Poll without blocking until then (armed by env-session traffic).
-    spin_until: Option<Instant>,
+    /// Whether to poll without blocking while an env answer is awaited.
+    spin: spin::Spin,
     store: Store,
     disp: Dispatcher,
     sessions: Sessions,
@@ -283,6 +286,7 @@ impl Broker {
             .map_or(0, |d| d.as_micros() as u64);
         disp.tasks.set_first_task_id(micros.saturating_mul(4096));
         let session_logs = cfg.session_logs;
+        let cfg_spin = cfg.spin;
         let mut b = Self {
             disp,
             cfg,
@@ -292,7 +296,7 @@ impl Broker {
             back,
             frontend_endpoint,
             backend_endpoint,
-            spin_until: None,
+            spin: spin::Spin::new(cfg_spin),
             store,
             sessions: Sessions::new(session_logs),
             lost_sessions: HashMap::new(),
@@ -375,10 +379,11 @@ impl Broker {
     /// Whether each socket has a message: polls without blocking while the spin is
     /// armed, then waits up to `timeout`.
     fn wait(&mut self, timeout: Duration) -> Result<(bool, bool), BrokerError> {
-        if let Some(until) = self.spin_until.take() {
+        if let Some(until) = self.spin.until() {
             loop {
                 let ready = self.poll_sockets(0)?;
                 if ready.0 || ready.1 {
+                    self.spin.arrived(ready.0, ready.1, Instant::now());
                     return Ok(ready);
                 }
                 if Instant::now() >= until {
@@ -388,7 +393,11 @@ impl Broker {
                 std::thread::yield_now();
             }
         }
-        self.poll_sockets(timeout.as_millis() as i64)
+        let ready = self.poll_sockets(timeout.as_millis() as i64)?;
+        if ready.0 || ready.1 {
+            self.spin.arrived(ready.0, ready.1, Instant::now());
+        }
+        Ok(ready)
     }
 
     fn poll_sockets(&self, timeout_ms: i64) -> Result<(bool, bool), BrokerError> {
@@ -407,11 +416,11 @@ impl Broker {
         }
     }
 
-    /// Polls without blocking for [`BrokerConfig::spin`] from now on.
-    fn arm_spin(&mut self) {
-        if !self.cfg.spin.is_zero() {
-            self.spin_until = Some(Instant::now() + self.cfg.spin);
-        }
+    /// Env traffic was forwarded to `side`: poll without blocking for up to
+    /// [`BrokerConfig::spin`] for its answer, if that side's last answer came that soon
+    /// (see [`spin`]).
+    fn arm_spin(&mut self, side: Side) {
+        self.spin.arm(side, Instant::now());
     }
 
     // ------------------------------------------------------------------ sending
