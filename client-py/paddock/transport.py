@@ -130,15 +130,15 @@ class Connection:
                 self._connect()
                 raise errors.BrokerUnavailable(self.endpoint, limit, what)
             # no copy out of ZeroMQ's message: an env observation's arrays are views of it
-            frame = self._sock.recv(copy=False)
-            fast = wire.env_observation(frame.buffer)
+            buf = self._sock.recv(copy=False).buffer
+            fast = wire.env_observation(buf) if len(buf) >= wire.VIEW_MIN_BYTES else None
             if fast is not None:
                 if fast[1] != rid:
                     continue  # the reply to a request its caller gave up on
                 return "env_observation", fast[2]
             env = pb.Envelope()
             try:
-                env.ParseFromString(frame.bytes)
+                env.ParseFromString(buf)
             except DecodeError:
                 continue
             if env.request_id != rid:

@@ -19,6 +19,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# Frames at least this long are read here; below it the protobuf runtime's parse (copies
+# included) costs less than walking the fields in Python.
+VIEW_MIN_BYTES = 16 * 1024
+
 # Envelope field numbers (proto/paddock.proto)
 _PROTOCOL_VERSION = 1
 _REQUEST_ID = 2
@@ -59,6 +63,10 @@ class _Unreadable(Exception):
 
 
 def _varint(buf: memoryview, i: int, end: int) -> tuple[int, int]:
+    if i < end:
+        b = buf[i]
+        if b < 0x80:
+            return b, i + 1
     value = 0
     shift = 0
     while i < end and shift < 70:
@@ -71,29 +79,34 @@ def _varint(buf: memoryview, i: int, end: int) -> tuple[int, int]:
     raise _Unreadable
 
 
-def _fields(buf: memoryview, i: int, end: int):
-    """(field number, wire type, value or (start, stop)) for each field in buf[i:end]."""
+def _fields(buf: memoryview, i: int, end: int) -> list[tuple[int, int, int, int]]:
+    """(field number, wire type, value or start, stop) for each field in buf[i:end];
+    a field seen twice makes the message unreadable here (the runtime merges or keeps
+    the last one)."""
+    out = []
+    seen = set()
     while i < end:
         key, i = _varint(buf, i, end)
         number, wire = key >> 3, key & 7
-        if number == 0 or number > _MAX_FIELD:
+        if number == 0 or number > _MAX_FIELD or number in seen:
             raise _Unreadable
+        seen.add(number)
         if wire == 0:
             value, i = _varint(buf, i, end)
-            yield number, wire, value
+            out.append((number, 0, value, i))
         elif wire == 2:
             n, i = _varint(buf, i, end)
             if i + n > end:
                 raise _Unreadable
-            yield number, wire, (i, i + n)
+            out.append((number, 2, i, i + n))
             i += n
         elif wire == 1 or wire == 5:
             i += 8 if wire == 1 else 4
             if i > end:
                 raise _Unreadable
-            yield number, wire, None
         else:
             raise _Unreadable  # groups: never in Paddock's protocol
+    return out
 
 
 def env_observation(frame: memoryview) -> tuple[int, int, Observation] | None:
@@ -101,41 +114,33 @@ def env_observation(frame: memoryview) -> tuple[int, int, Observation] | None:
     body is an env observation, else None (parse it with the protobuf runtime)."""
     buf = frame if frame.format == "B" else frame.cast("B")
     try:
-        seen: set[int] = set()
         version = request_id = 0
         body = None
-        for number, wire, value in _fields(buf, 0, len(buf)):
-            if number in seen:
-                return None
-            seen.add(number)
+        for number, wire, a, b in _fields(buf, 0, len(buf)):
             if number == _PROTOCOL_VERSION and wire == 0:
-                version = value & 0xFFFFFFFF
+                version = a & 0xFFFFFFFF
             elif number == _REQUEST_ID and wire == 0:
-                request_id = value & 0xFFFFFFFFFFFFFFFF
+                request_id = a
             elif number == _ENV_OBSERVATION and wire == 2:
-                body = value
+                body = (a, b)
             else:
                 return None  # another body, or a known field with the wrong wire type
         if body is None:
             return None
-        obs = Observation()
-        seen.clear()
-        for number, wire, value in _fields(buf, body[0], body[1]):
-            if number in seen:
-                return None
-            seen.add(number)
+        values: dict[str, int | memoryview] = {}
+        for number, wire, a, b in _fields(buf, body[0], body[1]):
             name = _OBS_VARINTS.get(number)
             if name is not None:
                 if wire != 0:
                     return None
-                setattr(obs, name, value & (0xFFFFFFFF if number == 2 else 0xFFFFFFFFFFFFFFFF))
+                values[name] = a & 0xFFFFFFFF if number == 2 else a
                 continue
             name = _OBS_BYTES.get(number)
             if name is not None:
                 if wire != 2:
                     return None
-                setattr(obs, name, buf[value[0]:value[1]])
+                values[name] = buf[a:b]
             # other numbers: fields of a newer protocol, skipped as the runtime skips them
-        return version, request_id, obs
+        return version, request_id, Observation(**values)
     except _Unreadable:
         return None

@@ -129,28 +129,46 @@ def test_arrays_are_views_of_the_frame() -> None:
     assert arr[0] == 42.0  # no copy was made
 
 
-@pytest.mark.parametrize("n", [1, 64])
-def test_env_steps_read_through_the_fast_path(endpoint: str, n: int) -> None:
+def _run(endpoint: str, n: int, view_min: int) -> tuple[list, int]:
+    """Observations of a seeded session, frames of at least `view_min` bytes read by
+    paddock.wire, and how many were."""
     import paddock
 
-    env = paddock.make_vec(n, endpoint, num_beams=64)
+    calls = {"view": 0}
+    original_min, original_read = wire.VIEW_MIN_BYTES, wire.env_observation
+
+    def counting(frame: memoryview):
+        got = original_read(frame)
+        calls["view"] += got is not None
+        return got
+
+    wire.VIEW_MIN_BYTES, wire.env_observation = view_min, counting
+    env = paddock.make_vec(n, endpoint, num_beams=128, seed=3)
     try:
-        obs, _ = env.reset(seed=1)
-        calls = {"fast": 0}
-        original = wire.env_observation
-
-        def counting(frame: memoryview):
-            got = original(frame)
-            calls["fast"] += got is not None
-            return got
-
-        wire.env_observation = counting
-        try:
-            obs, reward, term, trunc, info = env.step(np.zeros((n, 2), np.float32))
-        finally:
-            wire.env_observation = original
-        assert calls["fast"] == 1
-        assert obs["scans"].shape == (n, 1, 64) and obs["scans"].dtype == np.float32
-        assert reward.shape == (n,) and info["progress"].shape == (n,)
+        frames = [env.reset(seed=1)]
+        actions = np.tile(np.array([[0.1, 2.0]], np.float32), (n, 1))
+        for _ in range(5):
+            frames.append(env.step(actions))
     finally:
         env.close()
+        wire.VIEW_MIN_BYTES, wire.env_observation = original_min, original_read
+    return frames, calls["view"]
+
+
+@pytest.mark.parametrize("n", [1, 8])
+def test_env_steps_read_the_same_either_way(endpoint: str, n: int) -> None:
+    viewed, fast = _run(endpoint, n, 0)
+    parsed, none = _run(endpoint, n, 1 << 40)
+    assert fast == 6 and none == 0
+    for a, b in zip(viewed, parsed):
+        obs_a, obs_b = a[0], b[0]
+        for k in obs_b:
+            assert obs_a[k].dtype == obs_b[k].dtype, k
+            np.testing.assert_array_equal(obs_a[k], obs_b[k], err_msg=k)
+        for x, y in zip(a[1:], b[1:]):
+            if isinstance(y, dict):
+                for k in y:
+                    np.testing.assert_array_equal(x[k], y[k], err_msg=k)
+            else:
+                np.testing.assert_array_equal(x, y)
+    assert viewed[-1][0]["scans"].shape == (n, 1, 128)
