@@ -26,7 +26,7 @@ use std::path::PathBuf;
 use paddock_proto::convert::with_prefix;
 use paddock_proto::{
     Body, EnvClosed, EnvObservation, EnvOpen, EnvOpened, EnvReset, EnvStep, Error, ErrorCode,
-    body_name, error, pack_f32, pack_f64, unpack_f64,
+    body_name, error, pack_f32, pack_f64, pack_u32, unpack_f64,
 };
 use paddock_rollout::env::{EnvConfig, EnvFrame, RewardWeights, VecEnv};
 use paddock_rollout::{AgentSpec, RolloutError};
@@ -391,10 +391,6 @@ fn rollout_error(e: &RolloutError) -> Error {
 
 fn bytes_of(flags: &[bool]) -> Vec<u8> {
     flags.iter().map(|&b| u8::from(b)).collect()
-}
-
-fn pack_u32(values: &[u32]) -> Vec<u8> {
-    values.iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
 fn observation(session_id: u64, f: &EnvFrame) -> EnvObservation {
