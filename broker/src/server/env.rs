@@ -105,7 +105,7 @@ impl Broker {
             what,
         });
         self.send(Side::Worker, &worker, fwd, body);
-        self.arm_spin(Side::Worker);
+        self.arm_spin();
     }
 
     /// A worker's `EnvOpened`, `EnvObservation`, `EnvClosed` or `Error` for request `rid`.
@@ -168,7 +168,7 @@ impl Broker {
             (_, other) => other,
         };
         self.send(Side::Client, &p.client, p.client_request, body);
-        self.arm_spin(Side::Client);
+        self.arm_spin();
     }
 
     fn on_replay_step(&mut self, sid: u64, client: &[u8], worker: &[u8], step: ReplayStep) {

@@ -24,7 +24,6 @@ use prost::Message;
 
 mod env;
 mod jobs;
-mod spin;
 mod tasks;
 
 use crate::core::{
@@ -62,10 +61,8 @@ pub struct BrokerConfig {
     pub local_backend: Option<String>,
     /// After forwarding env-session traffic the loop polls without blocking for this
     /// long before it sleeps: the reply (or the client's next step) usually comes
-    /// sooner, and a thread that never slept needs no wake-up. It spins only for a side
-    /// (workers, clients) whose last answer came within this window, so a long step
-    /// does not take a core from the worker's threads. Rollout tasks never arm it, and
-    /// an idle broker never spins. Zero: always block.
+    /// sooner, and a thread that never slept needs no wake-up. Rollout tasks never arm
+    /// it, and an idle broker never spins. Zero: always block.
     pub spin: Duration,
 }
 
@@ -171,8 +168,8 @@ pub struct Broker {
     back: zmq::Socket,
     frontend_endpoint: String,
     backend_endpoint: String,
-    /// Whether to poll without blocking while an env answer is awaited.
-    spin: spin::Spin,
+    /// Poll without blocking until then (armed by env-session traffic).
+    spin_until: Option<Instant>,
     store: Store,
     disp: Dispatcher,
     sessions: Sessions,
@@ -286,7 +283,6 @@ impl Broker {
             .map_or(0, |d| d.as_micros() as u64);
         disp.tasks.set_first_task_id(micros.saturating_mul(4096));
         let session_logs = cfg.session_logs;
-        let cfg_spin = cfg.spin;
         let mut b = Self {
             disp,
             cfg,
@@ -296,7 +292,7 @@ impl Broker {
             back,
             frontend_endpoint,
             backend_endpoint,
-            spin: spin::Spin::new(cfg_spin),
+            spin_until: None,
             store,
             sessions: Sessions::new(session_logs),
             lost_sessions: HashMap::new(),
@@ -379,11 +375,10 @@ impl Broker {
     /// Whether each socket has a message: polls without blocking while the spin is
     /// armed, then waits up to `timeout`.
     fn wait(&mut self, timeout: Duration) -> Result<(bool, bool), BrokerError> {
-        if let Some(until) = self.spin.until() {
+        if let Some(until) = self.spin_until.take() {
             loop {
                 let ready = self.poll_sockets(0)?;
                 if ready.0 || ready.1 {
-                    self.spin.arrived(ready.0, ready.1, Instant::now());
                     return Ok(ready);
                 }
                 if Instant::now() >= until {
@@ -393,11 +388,7 @@ impl Broker {
                 std::thread::yield_now();
             }
         }
-        let ready = self.poll_sockets(timeout.as_millis() as i64)?;
-        if ready.0 || ready.1 {
-            self.spin.arrived(ready.0, ready.1, Instant::now());
-        }
-        Ok(ready)
+        self.poll_sockets(timeout.as_millis() as i64)
     }
 
     fn poll_sockets(&self, timeout_ms: i64) -> Result<(bool, bool), BrokerError> {
@@ -416,11 +407,11 @@ impl Broker {
         }
     }
 
-    /// Env traffic was forwarded to `side`: poll without blocking for up to
-    /// [`BrokerConfig::spin`] for its answer, if that side's last answer came that soon
-    /// (see [`spin`]).
-    fn arm_spin(&mut self, side: Side) {
-        self.spin.arm(side, Instant::now());
+    /// Polls without blocking for [`BrokerConfig::spin`] from now on.
+    fn arm_spin(&mut self) {
+        if !self.cfg.spin.is_zero() {
+            self.spin_until = Some(Instant::now() + self.cfg.spin);
+        }
     }
 
     // ------------------------------------------------------------------ sending
