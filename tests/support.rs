@@ -51,25 +51,47 @@ pub fn free_port() -> u16 {
         .port()
 }
 
-/// A child process, killed (SIGKILL) when dropped.
+/// A child process, killed (SIGKILL) when dropped. Its stderr goes to a log file, shown
+/// when a test fails for want of it.
 pub struct Proc {
     pub name: String,
     child: Child,
+    log: tempfile::NamedTempFile,
 }
 
 impl Proc {
     pub fn spawn(name: &str, args: &[&str]) -> Proc {
+        let log = tempfile::NamedTempFile::new().expect("a log file");
+        let stderr = log.reopen().expect("the log file, for writing");
         let child = Command::new(paddock_bin())
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(stderr)
             .spawn()
             .unwrap_or_else(|e| panic!("starting {name} ({args:?}): {e}"));
         Proc {
             name: name.to_string(),
             child,
+            log,
         }
+    }
+
+    /// The last lines the process wrote to stderr.
+    pub fn log_tail(&self) -> String {
+        let text = std::fs::read_to_string(self.log.path()).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        lines[lines.len().saturating_sub(20)..].join("\n")
+    }
+
+    /// Whether it runs, or how it ended, and its last stderr lines.
+    pub fn report(&mut self) -> String {
+        let state = match self.child.try_wait() {
+            Ok(None) => "running".to_string(),
+            Ok(Some(status)) => format!("exited: {status}"),
+            Err(e) => format!("unknown: {e}"),
+        };
+        format!("{} {state}; stderr:\n{}", self.name, self.log_tail())
     }
 
     pub fn pid(&self) -> u32 {
@@ -133,14 +155,29 @@ impl Cluster {
     /// A broker with `workers` workers of `threads` threads each, all registered.
     pub fn start(workers: usize, threads: usize) -> Cluster {
         let mut c = Cluster {
-            front: format!("tcp://127.0.0.1:{}", free_port()),
-            back: format!("tcp://127.0.0.1:{}", free_port()),
+            front: String::new(),
+            back: String::new(),
             state: tempfile::tempdir().expect("a state directory"),
             maps: tempfile::tempdir().expect("a maps directory"),
             broker: None,
             workers: Vec::new(),
         };
-        c.start_broker();
+        // a port found free can be taken by another socket before the broker binds it:
+        // then the broker exits, and it starts again on other ports
+        for attempt in 1..=3 {
+            c.front = format!("tcp://127.0.0.1:{}", free_port());
+            c.back = format!("tcp://127.0.0.1:{}", free_port());
+            c.start_broker();
+            if c.broker_answers(Duration::from_secs(20)) {
+                break;
+            }
+            let report = c.broker_report();
+            assert!(
+                attempt < 3 && report.contains("exited"),
+                "the broker on {} does not answer: {report}",
+                c.front
+            );
+        }
         for _ in 0..workers {
             c.add_worker(threads);
         }
@@ -208,19 +245,44 @@ impl Cluster {
     }
 
     /// Waits until the broker counts `n` workers.
-    pub fn wait_workers(&self, n: usize, within: Duration) {
+    pub fn wait_workers(&mut self, n: usize, within: Duration) {
         let t0 = Instant::now();
         loop {
             if self.workers_alive() == Some(n) {
                 return;
             }
-            assert!(
-                t0.elapsed() < within,
-                "the broker did not count {n} workers within {within:?} (now {:?})",
-                self.workers_alive()
-            );
+            if t0.elapsed() >= within {
+                let now = self.workers_alive();
+                panic!(
+                    "the broker did not count {n} workers within {within:?} (now {now:?}); {}",
+                    self.broker_report()
+                );
+            }
             std::thread::sleep(Duration::from_millis(50));
         }
+    }
+
+    /// Whether the broker answers a status request within `within` (false at once if
+    /// its process has ended).
+    fn broker_answers(&mut self, within: Duration) -> bool {
+        let t0 = Instant::now();
+        while t0.elapsed() < within {
+            if self.workers_alive().is_some() {
+                return true;
+            }
+            if self.broker.as_mut().is_some_and(|b| !b.alive()) {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        false
+    }
+
+    /// The broker process's state and last stderr lines.
+    pub fn broker_report(&mut self) -> String {
+        self.broker
+            .as_mut()
+            .map_or_else(|| "no broker process".to_string(), Proc::report)
     }
 
     /// A client of the broker.
