@@ -16,7 +16,7 @@ use paddock_bridge::msg::{AckermannDriveStamped, Header, LaserScan, Odometry, Ti
 use paddock_bridge::record::{GAP_CSV_HEADER, RecordOptions, export_csv, read_gap_rows, record};
 use paddock_bridge::ros::{RosConfig, RosNode, publish, take_latest};
 use paddock_bridge::safety::SafetyConfig;
-use paddock_bridge::sil::{SilOptions, run_sil};
+use paddock_bridge::sil::SilOptions;
 use paddock_rollout::{AgentSpec, Scenario, StartSpec, run_episode};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::lidar::LidarConfig;
@@ -24,6 +24,9 @@ use paddock_sim::params::VehicleParams;
 use paddock_sim::track::Circuit;
 use paddock_sim::world::{Starts, World, WorldConfig};
 use paddock_sysid::{AnalysisOptions, McapTopics, Recording, analyze};
+
+mod common;
+use common::SilThread;
 
 const MAP: &str = "harbour";
 const RATE: f64 = 4.0;
@@ -66,21 +69,17 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
     assert_eq!(expected.len(), 2, "the rollout itself must finish two laps");
 
     let stop = Arc::new(AtomicBool::new(false));
-    let sil_stop = Arc::new(AtomicBool::new(false));
-    let sil = {
-        let (ros, stop) = (ros.clone(), sil_stop.clone());
-        thread::spawn(move || {
-            let options = SilOptions {
-                map: MAP.into(),
-                rate: RATE,
-                laps: Some(2),
-                seconds: Some(200.0),
-                wait_for_drive: true,
-                ..SilOptions::default()
-            };
-            run_sil(&options, &ros, &stop)
-        })
-    };
+    let sil = SilThread::start(
+        SilOptions {
+            map: MAP.into(),
+            rate: RATE,
+            laps: Some(2),
+            seconds: Some(200.0),
+            wait_for_drive: true,
+            ..SilOptions::default()
+        },
+        &ros,
+    );
     let bag = tmp("loop.mcap");
     let recorder = {
         let (ros, stop, bag) = (ros.clone(), stop.clone(), bag.clone());
@@ -111,8 +110,7 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
         thread::sleep(Duration::from_millis(100));
         waited += 0.1;
     }
-    sil_stop.store(true, Ordering::Relaxed);
-    let sil = sil.join().unwrap().unwrap();
+    let sil = sil.stop();
     thread::sleep(Duration::from_millis(200));
     stop.store(true, Ordering::Relaxed);
     let drive = drive.join().unwrap().unwrap();
@@ -319,20 +317,16 @@ fn sil_opponent_topics_and_initial_pose() {
     use paddock_bridge::msg::{PoseWithCovarianceStamped, Quaternion};
     use paddock_bridge::sil::Opponent;
     let ros = ros(63);
-    let stop = Arc::new(AtomicBool::new(false));
-    let sil = {
-        let (ros, stop) = (ros.clone(), stop.clone());
-        thread::spawn(move || {
-            let options = SilOptions {
-                map: "lakeside".into(),
-                rate: 2.0,
-                seconds: Some(60.0),
-                opponent: Some(Opponent::Ros),
-                ..SilOptions::default()
-            };
-            run_sil(&options, &ros, &stop)
-        })
-    };
+    let sil = SilThread::start(
+        SilOptions {
+            map: "lakeside".into(),
+            rate: 2.0,
+            seconds: Some(60.0),
+            opponent: Some(Opponent::Ros),
+            ..SilOptions::default()
+        },
+        &ros,
+    );
     let circuit = Circuit::resolve("lakeside", &[]).unwrap();
     let (target, _, _) = circuit.track.at(30.0);
     let mut node = RosNode::new("opponent_driver", &ros).unwrap();
@@ -368,8 +362,7 @@ fn sil_opponent_topics_and_initial_pose() {
             ego = Some(o.pose.pose);
         }
     }
-    stop.store(true, Ordering::Relaxed);
-    let summary = sil.join().unwrap().unwrap();
+    let summary = sil.stop();
     assert_eq!(summary.lap_times.len(), 2);
     assert!(
         opp_speed > 1.0,

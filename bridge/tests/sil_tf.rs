@@ -2,15 +2,16 @@
 //! odometry message (same stamp, same numbers), and `/tf_static` the LIDAR mount, which a
 //! subscriber that joins late still receives (transient local, like tf2's static QoS).
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread;
 use std::time::{Duration, Instant};
 
 use paddock_bridge::msg::{AckermannDriveStamped, Odometry, TFMessage};
 use paddock_bridge::ros::{Frames, RosConfig, RosNode, publish, take_latest};
-use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
+use paddock_bridge::sil::{Opponent, SilOptions};
 use paddock_sim::lidar::LidarConfig;
+
+mod common;
+use common::SilThread;
 
 /// Every message waiting on `sub`, oldest first.
 fn take_all<M: paddock_bridge::msg::RosMessage>(
@@ -33,21 +34,17 @@ fn sil_tf_matches_odometry_and_static_laser_reaches_a_late_subscriber() {
         mount_offset: 0.275,
         ..LidarConfig::default()
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    let sil = {
-        let (ros, stop, lidar) = (ros.clone(), stop.clone(), lidar.clone());
-        thread::spawn(move || {
-            let options = SilOptions {
-                map: "lakeside".into(),
-                rate: 2.0,
-                seconds: Some(60.0),
-                lidar,
-                opponent: Some(Opponent::Ros),
-                ..SilOptions::default()
-            };
-            run_sil(&options, &ros, &stop)
-        })
-    };
+    let sil = SilThread::start(
+        SilOptions {
+            map: "lakeside".into(),
+            rate: 2.0,
+            seconds: Some(60.0),
+            lidar: lidar.clone(),
+            opponent: Some(Opponent::Ros),
+            ..SilOptions::default()
+        },
+        &ros,
+    );
     let mut node = RosNode::new("tf_listener", &ros).unwrap();
     let odom = node.subscription::<Odometry>("/odom").unwrap();
     let opp_odom = node.subscription::<Odometry>("/opp_odom").unwrap();
@@ -108,8 +105,7 @@ fn sil_tf_matches_odometry_and_static_laser_reaches_a_late_subscriber() {
         got = take_latest(&statics, "/tf_static");
         thread::sleep(Duration::from_millis(10));
     }
-    stop.store(true, Ordering::Relaxed);
-    let summary = sil.join().unwrap().unwrap();
+    let summary = sil.stop();
     let got = got.expect("transient local: /tf_static reaches a late subscriber");
     assert_eq!(got.transforms.len(), 2, "{got:?}");
     for (tr, parent, child) in [
@@ -141,20 +137,16 @@ fn sil_without_tf_publishes_none() {
         domain_id: 65,
         ..RosConfig::default()
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    let sil = {
-        let (ros, stop) = (ros.clone(), stop.clone());
-        thread::spawn(move || {
-            let options = SilOptions {
-                map: "lakeside".into(),
-                rate: 2.0,
-                seconds: Some(30.0),
-                tf: false,
-                ..SilOptions::default()
-            };
-            run_sil(&options, &ros, &stop)
-        })
-    };
+    let sil = SilThread::start(
+        SilOptions {
+            map: "lakeside".into(),
+            rate: 2.0,
+            seconds: Some(30.0),
+            tf: false,
+            ..SilOptions::default()
+        },
+        &ros,
+    );
     let mut node = RosNode::new("tf_listener", &ros).unwrap();
     let odom = node.subscription::<Odometry>("/odom").unwrap();
     let tf = node.subscription::<TFMessage>("/tf").unwrap();
@@ -165,8 +157,7 @@ fn sil_without_tf_publishes_none() {
         take_all(&odom, &mut odoms);
         take_all(&tf, &mut tfs);
     }
-    stop.store(true, Ordering::Relaxed);
-    let summary = sil.join().unwrap().unwrap();
+    let summary = sil.stop();
     assert!(odoms.len() >= 100, "odometry flows: {}", odoms.len());
     assert!(tfs.is_empty(), "{} /tf messages", tfs.len());
     assert_eq!(summary.tfs_published, 0);
