@@ -45,6 +45,19 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def stop_process(p: subprocess.Popen) -> None:
+    """Stops a `paddock` process as Ctrl-C does (SIGINT: `serve` stops its workers and
+    removes its temporary state directory; a worker says bye), killing it after 10 s."""
+    if p.poll() is not None:
+        return
+    p.send_signal(signal.SIGINT)
+    try:
+        p.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.wait()
+
+
 class LocalServer:
     """`paddock serve` on a free loopback port; ``endpoint`` is where clients connect."""
 
@@ -103,15 +116,8 @@ class LocalServer:
     def stop(self) -> None:
         p = self.process
         self.process = None
-        if p is None or p.poll() is not None:
-            return
-        # SIGINT: serve stops its workers and removes its temporary state directory
-        p.send_signal(signal.SIGINT)
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+        if p is not None:
+            stop_process(p)
 
     def log(self) -> str:
         """What the server wrote to stderr so far."""

@@ -21,20 +21,10 @@ import pytest
 
 import paddock
 from paddock import errors
-from paddock.server import find_paddock, free_port
+from paddock.server import find_paddock, free_port, stop_process
 from paddock.transport import Connection
 
 ACTION = np.array([0.05, 1.5], dtype=np.float32)
-
-
-def _stop(p: subprocess.Popen) -> None:
-    if p.poll() is None:
-        p.send_signal(signal.SIGINT)
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 @contextlib.contextmanager
@@ -65,7 +55,7 @@ def _cluster(workers: int) -> Iterator[tuple[str, list[subprocess.Popen]]]:
             yield front, procs
         finally:
             for p in [*procs, broker]:
-                _stop(p)
+                stop_process(p)
 
 
 def _hosting_worker(front: str, procs: list[subprocess.Popen]) -> subprocess.Popen:
