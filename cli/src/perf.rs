@@ -3,7 +3,10 @@
 //! Cars driven by pure pursuit lap the map (episodes restart from seeded random starts);
 //! only the time inside `World::step` is counted, so the figure is the simulator's own
 //! cost: dynamics, collisions, laps and (unless disabled) the 1080-beam LIDAR of every
-//! car. Rays/s times the LIDAR alone from poses recorded on the track.
+//! car. Rays/s times the LIDAR alone from poses recorded on the track. The report names
+//! the map and the LIDAR's code path and the CPU's SIMD features, since the scan's speed
+//! depends on them (`--scan-path` forces a narrower path, to measure what a CPU without
+//! AVX-512 gets).
 
 use std::time::{Duration, Instant};
 
@@ -12,7 +15,7 @@ use clap::Args;
 use paddock_policy::{Driver, PurePursuit, PurePursuitParams};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
-use paddock_sim::lidar::{Lidar, LidarConfig};
+use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
 use paddock_sim::track::{Circuit, DEFAULT_MAP};
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 use serde::Serialize;
@@ -31,6 +34,9 @@ pub struct PerfArgs {
     /// Wall-clock seconds per measurement.
     #[arg(long, default_value_t = 3.0)]
     seconds: f64,
+    /// LIDAR code path: portable, avx or avx512 (default: the widest this CPU has).
+    #[arg(long)]
+    scan_path: Option<String>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -39,6 +45,13 @@ pub struct PerfArgs {
 #[derive(Serialize)]
 struct PerfReport {
     map: String,
+    /// Grid width x height in cells, and metres per cell.
+    map_cells: [usize; 2],
+    map_resolution: f64,
+    /// The LIDAR march's code path (`portable`, `avx`, `avx512`).
+    scan_path: String,
+    /// The CPU's SIMD features, space-separated.
+    cpu_features: String,
     agents: usize,
     agent_steps_per_s_scan: Option<f64>,
     agent_steps_per_s_noscan: f64,
@@ -54,15 +67,18 @@ struct Run {
 fn drive(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
-    scan: bool,
+    scan: Option<ScanPath>,
     seconds: f64,
 ) -> Result<Run> {
     let mut config = WorldConfig::with_agents(agents);
     config.collision_mode = CollisionMode::Stop;
     for a in &mut config.agents {
-        a.scan = scan;
+        a.scan = scan.is_some();
     }
     let mut world = World::new(circuit.clone(), config)?;
+    if let Some(path) = scan {
+        world.set_scan_path(path)?;
+    }
     let mut drivers: Vec<PurePursuit> = (0..agents)
         .map(|_| PurePursuit::on_circuit(circuit, PurePursuitParams::default()))
         .collect();
@@ -109,16 +125,21 @@ pub fn run(args: &PerfArgs) -> Result<()> {
         "--agents {} is out of range (1..=64)",
         args.agents
     );
+    let path = match args.scan_path.as_deref() {
+        None => ScanPath::best(),
+        Some(name) => ScanPath::from_name(name)
+            .with_context(|| format!("--scan-path {name:?} is not one of portable, avx, avx512"))?,
+    };
+    let lidar = Lidar::new(LidarConfig::default()).with_path(path)?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
-    let noscan = drive(&circuit, args.agents, false, args.seconds)?;
+    let noscan = drive(&circuit, args.agents, None, args.seconds)?;
     let noscan_rate = noscan.agent_steps as f64 / noscan.busy.as_secs_f64();
     let (scan_rate, rays_rate) = if args.no_scan {
         (None, None)
     } else {
         tracing::info!(map = %circuit.name, agents = args.agents, "measuring with scan");
-        let scan = drive(&circuit, args.agents, true, args.seconds)?;
+        let scan = drive(&circuit, args.agents, Some(path), args.seconds)?;
         let scan_rate = scan.agent_steps as f64 / scan.busy.as_secs_f64();
-        let lidar = Lidar::new(LidarConfig::default());
         let beams = LidarConfig::default().num_beams;
         let mut out = vec![0.0; beams];
         let budget = Duration::from_secs_f64(args.seconds.max(0.1));
@@ -138,6 +159,10 @@ pub fn run(args: &PerfArgs) -> Result<()> {
     };
     let report = PerfReport {
         map: circuit.name.clone(),
+        map_cells: [circuit.map.width(), circuit.map.height()],
+        map_resolution: circuit.map.resolution(),
+        scan_path: path.name().to_string(),
+        cpu_features: cpu_features(),
         agents: args.agents,
         agent_steps_per_s_scan: scan_rate,
         agent_steps_per_s_noscan: noscan_rate,
@@ -147,7 +172,14 @@ pub fn run(args: &PerfArgs) -> Result<()> {
         println!("{}", serde_json::to_string(&report)?);
         return Ok(());
     }
-    println!("map {}, {} agent(s), one thread", report.map, report.agents);
+    println!(
+        "map {} ({} x {} cells of {} m), {} agent(s), one thread",
+        report.map, report.map_cells[0], report.map_cells[1], report.map_resolution, report.agents
+    );
+    println!(
+        "  LIDAR path {} (CPU features: {})",
+        report.scan_path, report.cpu_features
+    );
     if let Some(r) = report.agent_steps_per_s_scan {
         println!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
     }

@@ -24,8 +24,9 @@ use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use paddock_sim::geometry::Pose;
-use paddock_sim::lidar::{Lidar, LidarConfig};
+use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath};
 use paddock_sim::map::Map;
+use paddock_sim::track::Circuit;
 
 const RES: f64 = 0.05;
 const SIZE: usize = 1040;
@@ -98,30 +99,52 @@ fn centre_poses(n: usize) -> Vec<Pose> {
         .collect()
 }
 
+/// Poses on the centreline of the default shipped map, heading along it.
+fn shipped_poses(circuit: &Circuit, n: usize) -> Vec<Pose> {
+    let len = circuit.track.length();
+    (0..n)
+        .map(|i| circuit.track.at(len * i as f64 / n as f64).0)
+        .collect()
+}
+
 fn bench_scan(c: &mut Criterion) {
-    let map = ring_map();
-    let _ = map.distance_field();
-    let poses = centre_poses(97);
-    let lidar = Lidar::new(LidarConfig::default());
-    let mut out = vec![0.0; lidar.num_beams()];
-    let mut group = c.benchmark_group("lidar_ring_0.05m");
-    group.throughput(Throughput::Elements(lidar.num_beams() as u64));
-    let mut i = 0;
-    group.bench_function("scan", |b| {
-        b.iter(|| {
-            i = (i + 1) % poses.len();
-            lidar.scan(&map, black_box(poses[i]), &[], &mut out);
-            black_box(&out);
-        })
-    });
-    group.bench_function("scan_reference", |b| {
-        b.iter(|| {
-            i = (i + 1) % poses.len();
-            lidar.scan_reference(&map, black_box(poses[i]), &mut out);
-            black_box(&out);
-        })
-    });
-    group.finish();
+    let ring = ring_map();
+    let _ = ring.distance_field();
+    let circuit = Circuit::default_circuit().expect("the default map ships with the project");
+    let maps: [(String, &Map, Vec<Pose>); 2] = [
+        ("lidar_ring_0.05m".to_string(), &ring, centre_poses(97)),
+        (
+            format!("lidar_{}", circuit.name),
+            &circuit.map,
+            shipped_poses(&circuit, 97),
+        ),
+    ];
+    for (group_name, map, poses) in &maps {
+        let mut group = c.benchmark_group(group_name);
+        let lidar = Lidar::new(LidarConfig::default());
+        let mut out = vec![0.0; lidar.num_beams()];
+        group.throughput(Throughput::Elements(lidar.num_beams() as u64));
+        let mut i = 0;
+        // Every path this CPU has, labelled (`scan/avx` is what AVX2-only CPUs run).
+        for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
+            let lidar = lidar.clone().with_path(path).expect("supported path");
+            group.bench_function(format!("scan/{path}"), |b| {
+                b.iter(|| {
+                    i = (i + 1) % poses.len();
+                    lidar.scan(map, black_box(poses[i]), &[], &mut out);
+                    black_box(&out);
+                })
+            });
+        }
+        group.bench_function("scan_reference", |b| {
+            b.iter(|| {
+                i = (i + 1) % poses.len();
+                lidar.scan_reference(map, black_box(poses[i]), &mut out);
+                black_box(&out);
+            })
+        });
+        group.finish();
+    }
 }
 
 criterion_group!(benches, bench_scan);

@@ -1,10 +1,12 @@
 //! Criterion benchmark of whole world steps on the default shipped map: one car and two
 //! cars, with and without the 1080-beam LIDAR. Cars drive a fixed gentle arc; episodes
 //! restart from the snapshot taken after reset, so every iteration steps a car in
-//! motion on the track.
+//! motion on the track. Steps with scans are measured on every LIDAR code path the CPU
+//! has (`world_step/1car_scan/avx` is what CPUs without AVX-512 run).
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use paddock_sim::collision::CollisionMode;
+use paddock_sim::lidar::ScanPath;
 use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 use std::hint::black_box;
@@ -22,14 +24,26 @@ fn world(agents: usize, scan: bool) -> World {
 }
 
 fn bench_world(c: &mut Criterion) {
-    for (agents, scan) in [(1, false), (1, true), (2, false), (2, true)] {
-        let mut w = world(agents, scan);
+    // With scans, every LIDAR path this CPU has (`avx` is what AVX2-only CPUs run).
+    let paths: Vec<ScanPath> = ScanPath::ALL
+        .into_iter()
+        .filter(|p| p.supported())
+        .collect();
+    let mut cases = vec![(1, None), (2, None)];
+    for agents in [1, 2] {
+        cases.extend(paths.iter().map(|&p| (agents, Some(p))));
+    }
+    for (agents, path) in cases {
+        let mut w = world(agents, path.is_some());
+        if let Some(p) = path {
+            w.set_scan_path(p).expect("supported path");
+        }
         let start = w.snapshot().unwrap();
         let actions = vec![Action::new(0.05, 4.0); agents];
-        let name = format!(
-            "world_step/{agents}car_{}",
-            if scan { "scan" } else { "noscan" }
-        );
+        let name = match path {
+            Some(p) => format!("world_step/{agents}car_scan/{p}"),
+            None => format!("world_step/{agents}car_noscan"),
+        };
         let mut k = 0u32;
         c.bench_function(&name, |b| {
             b.iter(|| {

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use crate::collision::{CollisionMode, obb_hits_map, obb_overlap};
 use crate::dynamics::Vehicle;
 use crate::geometry::{Obb, Pose, wrap_angle};
-use crate::lidar::{Lidar, LidarConfig};
+use crate::lidar::{Lidar, LidarConfig, ScanPath, ScanPathError};
 use crate::params::VehicleParams;
 use crate::rng::Rng;
 use crate::track::{Circuit, LapCounter};
@@ -409,6 +409,18 @@ impl World {
 
     pub fn config(&self) -> &WorldConfig {
         &self.config
+    }
+
+    /// Forces the LIDAR scans onto one code path (benches and `paddock perf` measure each
+    /// path this way; every path gives the same bits). An error if this CPU cannot run it.
+    pub fn set_scan_path(&mut self, path: ScanPath) -> Result<(), ScanPathError> {
+        self.lidar = self.lidar.clone().with_path(path)?;
+        Ok(())
+    }
+
+    /// The code path of this world's LIDAR scans (see [`Lidar::path`]).
+    pub fn scan_path(&self) -> ScanPath {
+        self.lidar.path()
     }
 
     pub fn num_agents(&self) -> usize {

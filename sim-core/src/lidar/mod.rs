@@ -13,7 +13,10 @@
 //! conformance with f1tenth_gym (see `shared/conformance/f1tenth_gym_scan`).
 
 mod march;
+mod path;
 mod reference;
+
+pub use path::{ScanPath, ScanPathError, cpu_features};
 
 use serde::{Deserialize, Serialize};
 
@@ -63,6 +66,8 @@ pub struct Lidar {
     beam_cos: Vec<f64>,
     beam_sin: Vec<f64>,
     reference: reference::TrigTable,
+    /// The march's code path; `None`: the widest the CPU supports.
+    path: Option<ScanPath>,
 }
 
 impl Lidar {
@@ -85,7 +90,30 @@ impl Lidar {
             beam_cos,
             beam_sin,
             reference,
+            path: None,
         }
+    }
+
+    /// This LIDAR with its scans forced onto `path` (benches, tests and `paddock perf`
+    /// use it to measure each path; every path gives the same bits). An error if this
+    /// CPU cannot run the path.
+    pub fn with_path(mut self, path: ScanPath) -> Result<Self, ScanPathError> {
+        if !path.supported() {
+            return Err(ScanPathError {
+                path,
+                features: cpu_features(),
+            });
+        }
+        self.path = Some(path);
+        Ok(self)
+    }
+
+    /// The code path [`Lidar::scan`] takes: the one forced by [`Lidar::with_path`], else
+    /// the widest this CPU supports. (A map whose clearance table does not fit 32-bit
+    /// indices, over 500 million cells, is scanned by the portable path whatever this
+    /// says.)
+    pub fn path(&self) -> ScanPath {
+        self.path.unwrap_or_else(ScanPath::best)
     }
 
     pub fn config(&self) -> &LidarConfig {
@@ -116,11 +144,11 @@ impl Lidar {
     /// # Panics
     /// If `out.len() != num_beams`.
     pub fn scan(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64]) {
-        self.scan_with(map, pose, shapes, out, true);
+        self.scan_with(map, pose, shapes, out, self.path());
     }
 
-    /// [`Lidar::scan`], with the SIMD versions allowed or (tests) the portable one only.
-    fn scan_with(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64], simd: bool) {
+    /// [`Lidar::scan`] on `path` (which the caller checked this CPU supports).
+    fn scan_with(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64], path: ScanPath) {
         let n = self.config.num_beams;
         assert_eq!(out.len(), n, "scan buffer length must equal num_beams");
         let (x, y) = self.origin(pose);
@@ -159,22 +187,20 @@ impl Lidar {
             max_range,
             boxes: &boxes,
         };
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = simd;
         #[cfg(target_arch = "x86_64")]
-        if simd {
-            if march::avx512_usable(map) {
+        {
+            if path >= ScanPath::Avx512 && march::avx512_usable(map) {
                 // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F and AVX2.
                 unsafe { self.scan_avx512(map, &job, out) };
                 return;
             }
-            if march::avx_usable(map) {
+            if path >= ScanPath::Avx && march::avx_usable(map) {
                 // SAFETY: `avx_usable` checked that the CPU supports AVX.
-                unsafe { self.scan_avx(map, &job, out) };
+                unsafe { self.scan_avx(map, &job, out, path.level()) };
                 return;
             }
         }
-        self.scan_chunks::<false>(map, &job, out);
+        self.scan_chunks::<false>(map, &job, out, 0);
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX enabled, so that its simple per-beam loops
@@ -184,8 +210,8 @@ impl Lidar {
     /// The CPU must support AVX.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
-    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
-        self.scan_chunks::<true>(map, job, out);
+    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
+        self.scan_chunks::<true>(map, job, out, level);
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX-512 enabled (the march itself picks its
@@ -196,16 +222,18 @@ impl Lidar {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx2")]
     unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
-        self.scan_chunks::<true>(map, job, out);
+        self.scan_chunks::<true>(map, job, out, 2);
     }
 
-    /// The beams in chunks: box limits, grid directions, the march, metres.
+    /// The beams in chunks: box limits, grid directions, the march (at most SIMD level
+    /// `level`, see [`ScanPath`]), metres.
     #[inline(always)]
-    fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
+    fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
         let n = out.len();
         // The ray batch (tens of KiB) is rewritten for every chunk, so one per thread
         // serves every scan instead of a fresh allocation each time.
         let mut batch = SCAN_BATCH.take().unwrap_or_else(march::Batch::new);
+        batch.simd = level;
         let mut limits = [0.0; march::CHUNK];
         let mut start = 0;
         while start < n {

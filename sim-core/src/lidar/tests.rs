@@ -363,7 +363,7 @@ fn scan_is_bit_identical_across_simd_paths() {
                 })
                 .collect();
             lidar.scan(&map, pose, &boxes, &mut fast);
-            lidar.scan_with(&map, pose, &boxes, &mut portable, false);
+            lidar.scan_with(&map, pose, &boxes, &mut portable, ScanPath::Portable);
             for (i, (a, b)) in fast.iter().zip(&portable).enumerate() {
                 assert_eq!(a.to_bits(), b.to_bits(), "beam {i} from {pose:?}");
             }

@@ -1,0 +1,115 @@
+//! Which implementation of the exact march [`Lidar::scan`](super::Lidar::scan) runs.
+//!
+//! Every path performs the same IEEE operations lane by lane (no FMA), so all give the
+//! same bits on the same input (tested on random grids and on real race tracks). By
+//! default a scan takes the widest path the CPU supports, detected at run time; benches,
+//! tests and `paddock perf` force a narrower one with [`Lidar::with_path`] to measure what
+//! CPUs without AVX-512 (or without AVX) get.
+//!
+//! [`Lidar::with_path`]: super::Lidar::with_path
+
+use std::fmt;
+
+/// A code path of the exact scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum ScanPath {
+    /// Plain Rust, any CPU: one ray per operation (the compiler's SSE2 on x86-64).
+    Portable,
+    /// x86-64 with AVX: four rays per instruction (the widest path of AVX2-only CPUs such
+    /// as AMD Zen 1-3 and most Intel desktop parts).
+    Avx,
+    /// x86-64 with AVX-512F and AVX2: eight rays per instruction, two packets stepped
+    /// together.
+    Avx512,
+}
+
+/// A path was asked for that this CPU cannot run.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("scan path `{path}` needs CPU features this CPU lacks (it has: {features})")]
+pub struct ScanPathError {
+    pub path: ScanPath,
+    /// The SIMD features this CPU has, as [`cpu_features`] lists them.
+    pub features: String,
+}
+
+impl ScanPath {
+    /// Every path, narrowest first.
+    pub const ALL: [ScanPath; 3] = [ScanPath::Portable, ScanPath::Avx, ScanPath::Avx512];
+
+    /// The path's name: `portable`, `avx` or `avx512`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ScanPath::Portable => "portable",
+            ScanPath::Avx => "avx",
+            ScanPath::Avx512 => "avx512",
+        }
+    }
+
+    /// The path named `name` (as [`ScanPath::name`] spells it).
+    pub fn from_name(name: &str) -> Option<ScanPath> {
+        ScanPath::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// Whether this CPU can run the path.
+    pub fn supported(self) -> bool {
+        match self {
+            ScanPath::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            ScanPath::Avx => std::arch::is_x86_feature_detected!("avx"),
+            #[cfg(target_arch = "x86_64")]
+            ScanPath::Avx512 => {
+                std::arch::is_x86_feature_detected!("avx512f")
+                    && std::arch::is_x86_feature_detected!("avx2")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    /// The widest path this CPU supports (what a scan uses unless told otherwise).
+    pub fn best() -> ScanPath {
+        ScanPath::ALL
+            .into_iter()
+            .rev()
+            .find(|p| p.supported())
+            .unwrap_or(ScanPath::Portable)
+    }
+
+    /// The SIMD level the march takes (0 portable, 1 AVX, 2 AVX-512).
+    pub(super) fn level(self) -> u8 {
+        match self {
+            ScanPath::Portable => 0,
+            ScanPath::Avx => 1,
+            ScanPath::Avx512 => 2,
+        }
+    }
+}
+
+impl fmt::Display for ScanPath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The SIMD features of this CPU that matter to the scan, space-separated (for example
+/// `sse2 avx avx2 fma avx512f`), or `none detected`.
+pub fn cpu_features() -> String {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut have = Vec::new();
+        macro_rules! probe {
+            ($($f:tt),*) => {
+                $(if std::arch::is_x86_feature_detected!($f) {
+                    have.push($f);
+                })*
+            };
+        }
+        probe!(
+            "sse2", "sse4.1", "avx", "avx2", "fma", "avx512f", "avx512dq", "avx512vl"
+        );
+        if !have.is_empty() {
+            return have.join(" ");
+        }
+    }
+    "none detected".to_string()
+}
