@@ -1,8 +1,11 @@
 //! One 1080-beam LIDAR scan on a race-track-like map: a stadium-shaped ring corridor
 //! 3 m wide with 0.1 m walls, 0.05 m cells, 1040 x 1040 cells (free outside the walls,
 //! like the shipped track maps), from poses on the centre line heading along it.
-//! Compares the exact [`Lidar::scan`] with the reference port [`Lidar::scan_reference`].
-//! Rays per second = 1080 / time per scan (criterion's "thrpt", in elements).
+//! Compares the exact [`Lidar::scan`] on each code path this CPU has (`scan/portable`,
+//! `scan/avx`, `scan/avx512`) with the reference port [`Lidar::scan_reference`], on that
+//! map and on the default shipped map. Rays per second = 1080 / time per scan
+//! (criterion's "thrpt", in elements). On a shared machine use the `scan_rounds` bench
+//! instead (CPU time, alternating rounds); figures per path: `docs/performance-scan.md`.
 //!
 //! Recorded (2-core AMD EPYC VM shared with other builds, so +-20 %; AVX path):
 //! scan 28-31 M rays/s (about 36 us per scan), scan_reference 6.8-7.0 M rays/s.

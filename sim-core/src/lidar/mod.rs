@@ -8,8 +8,9 @@
 //! cell as its corner and extends that way: a ray jumps straight to the far side of the
 //! square ahead of it, and only when heading into a wall does it take exact one-cell
 //! grid-traversal steps (Amanatides-Woo). Several beams are traced interleaved so their
-//! memory loads overlap. [`Lidar::scan_reference`] reproduces the reference's
-//! sphere tracing on the distance transform, including its angle quantisation, for
+//! memory loads overlap; the march runs on the widest [`ScanPath`] the CPU supports
+//! (AVX-512, AVX or portable), all giving the same bits. [`Lidar::scan_reference`]
+//! reproduces the reference's sphere tracing on the distance transform, including its angle quantisation, for
 //! conformance with f1tenth_gym (see `shared/conformance/f1tenth_gym_scan`).
 
 mod march;
