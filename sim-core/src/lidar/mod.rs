@@ -10,8 +10,9 @@
 //! grid-traversal steps (Amanatides-Woo). Several beams are traced interleaved so their
 //! memory loads overlap; the march runs on the widest [`ScanPath`] the CPU supports
 //! (AVX-512, AVX or portable), all giving the same bits. [`Lidar::scan_reference`]
-//! reproduces the reference's sphere tracing on the distance transform, including its angle quantisation, for
-//! conformance with f1tenth_gym (see `shared/conformance/f1tenth_gym_scan`).
+//! reproduces the reference's sphere tracing on the distance transform, including its
+//! angle quantisation, for conformance with f1tenth_gym (see
+//! `shared/conformance/f1tenth_gym_scan`).
 
 mod march;
 mod path;
