@@ -10,7 +10,8 @@
 //!   global mutable state (the map cache only shares immutable maps). f64 state, a fixed
 //!   timestep, one seeded PRNG per world ([`rng::Rng`]), and transcendental functions from
 //!   the `libm` crate, so the same seed and actions give the same bits on every host.
-//! - **No I/O** beyond loading maps, tracks and vehicle parameter files.
+//! - **No I/O** beyond loading maps, tracks and vehicle parameter files (a shipped map,
+//!   compiled in, is written once to the temporary directory and loaded from there).
 //! - **Fast.** The LIDAR and the dynamics are built for millions of steps per second.
 //!
 //! Start with [`prelude`].
@@ -22,6 +23,7 @@ pub mod lidar;
 pub mod map;
 pub mod params;
 pub mod rng;
+pub mod shipped;
 pub mod track;
 pub mod trackgen;
 pub mod world;
