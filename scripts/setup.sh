@@ -39,14 +39,16 @@ fi
 # directory starts as a copy of the most recently used one (or of the older shared
 # ~/.cache/paddock/target) with the fingerprints of this workspace's own crates removed:
 # third-party crates are reused, every paddock crate is built again from this checkout.
-# Directories unused for 7 days are removed.
+# Only the four most recently used directories are kept, none unused for 7 days.
 if [ -z "${CARGO_TARGET_DIR:-}" ]; then
     _root="$(pwd -P)"
     _targets="$HOME/.cache/paddock/targets"
     export CARGO_TARGET_DIR="$_targets/$(basename "$_root")-$(printf '%s' "$_root" | sha256sum | cut -c1-12)"
     if [ ! -d "$CARGO_TARGET_DIR" ]; then
         mkdir -p "$_targets"
+        # disk: keep the three most recently used besides this one, none unused for a week
         find "$_targets" -mindepth 1 -maxdepth 1 -type d -mtime +7 -exec rm -rf {} + 2>/dev/null || true
+        ls -1td "$_targets"/*/ 2>/dev/null | tail -n +4 | while read -r _old; do rm -rf "$_old"; done || true
         _seed="$(ls -1td "$_targets"/*/ 2>/dev/null | head -n 1 || true)"
         if [ -z "$_seed" ] && [ -d "$HOME/.cache/paddock/target/release" ]; then
             _seed="$HOME/.cache/paddock/target"
