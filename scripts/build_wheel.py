@@ -4,8 +4,10 @@ the wheel's script, so pip installs it into the environment's `bin/`, where the 
 `endpoint=None` finds it.
 
 The wheel is tagged `py3-none-<platform>`: any Python 3, no Python ABI, this machine's
-platform (the binary links only the C library dynamically). It is reproducible: entries
-sorted, fixed timestamps (SOURCE_DATE_EPOCH when set). Standard library only.
+platform (`linux_x86_64`). The binary links the C and C++ runtimes (glibc, libstdc++)
+dynamically, so it runs on Linux hosts with a glibc at least as new as the build host's;
+a manylinux tag for PyPI would need that checked (auditwheel). It is reproducible:
+entries sorted, fixed timestamps (SOURCE_DATE_EPOCH when set). Standard library only.
 
     python3 scripts/build_wheel.py --binary target/release/paddock --out dist
 """

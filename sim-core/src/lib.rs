@@ -7,7 +7,8 @@
 //!
 //! ## Design
 //! - **Pure and deterministic.** All state is in plain values passed to `step`; there is no
-//!   global mutable state (the map cache only shares immutable maps). f64 state, a fixed
+//!   global mutable state (the map cache only shares immutable maps; the folders of a
+//!   user's maps are added once at start-up, [`shipped::add_map_dirs`]). f64 state, a fixed
 //!   timestep, one seeded PRNG per world ([`rng::Rng`]), and transcendental functions from
 //!   the `libm` crate, so the same seed and actions give the same bits on every host.
 //! - **No I/O** beyond loading maps, tracks and vehicle parameter files (a shipped map,
