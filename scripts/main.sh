@@ -5,7 +5,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
-export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/paddock/target}"
 echo "building paddock (release; the first build takes a few minutes)..." >&2
 cargo build --release --locked -q -p paddock
 exec "$CARGO_TARGET_DIR/release/paddock" tune "$@"

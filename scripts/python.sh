@@ -8,9 +8,13 @@
 #   scripts/python.sh -k env -x    # extra arguments go to the client-py pytest run
 #
 # PADDOCK_VENV overrides the venv (default ~/.cache/paddock/venv); CARGO_TARGET_DIR is
-# honoured; PADDOCK_BIN skips the cargo build and uses that binary.
+# honoured (default: scripts/setup.sh's per-checkout directory); PADDOCK_BIN skips the
+# cargo build and uses that binary.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if [ -z "${PADDOCK_BIN:-}" ]; then
+    source scripts/setup.sh
+fi
 
 VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
 PY="${PYTHON:-python3}"
@@ -21,9 +25,10 @@ if [ ! -x "$VENV/bin/python" ]; then
     echo "python.sh: creating the venv $VENV"
     "$PY" -m venv "$VENV"
 fi
-# install only when the pins or the package metadata changed
+# install only when the pins, the package metadata or the checkout (the editable
+# install points into it) changed
 stamp="$VENV/.paddock-stamp"
-want="$(printf '%s\n' "${PINS[@]}" | cat - client-py/pyproject.toml | sha256sum | cut -d' ' -f1)"
+want="$( { printf '%s\n' "${PINS[@]}" "$(pwd -P)"; cat client-py/pyproject.toml; } | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check "${PINS[@]}"
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e client-py
@@ -31,9 +36,8 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
 fi
 
 if [ -z "${PADDOCK_BIN:-}" ]; then
-    cargo build --release -q -p paddock
-    PADDOCK_BIN="${CARGO_TARGET_DIR:-target}/release/paddock"
-    PADDOCK_BIN="$(cd "$(dirname "$PADDOCK_BIN")" && pwd)/paddock"
+    cargo build --release --locked -q -p paddock
+    PADDOCK_BIN="$(cd "$CARGO_TARGET_DIR/release" && pwd)/paddock"
 fi
 export PADDOCK_BIN
 echo "python.sh: testing client-py against $PADDOCK_BIN serve"

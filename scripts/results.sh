@@ -4,7 +4,7 @@
 # Usage: scripts/results.sh [EPISODES]   (default 20; prints a markdown table)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/paddock/target}"
+source scripts/setup.sh
 cargo build --release --locked -q -p paddock
 P="$CARGO_TARGET_DIR/release/paddock"
 N="${1:-20}"

@@ -91,6 +91,11 @@ pub struct ServeArgs {
     /// Where the workers keep maps (default: inside the state directory).
     #[arg(long)]
     pub maps: Option<PathBuf>,
+    /// Stop (as Ctrl-C does) once the process with this id is no longer this server's
+    /// parent, i.e. it exited or was killed: a server a program started never outlives
+    /// it. The Python client passes its own id.
+    #[arg(long, value_name = "PID")]
+    pub parent_pid: Option<u32>,
 }
 
 #[derive(Args)]
@@ -203,6 +208,7 @@ fn health_beat(path: PathBuf, stop: Arc<AtomicBool>) {
 pub fn broker(args: &BrokerArgs) -> Result<()> {
     let mut cfg = BrokerConfig::new(&args.bind, &args.workers, &args.state);
     cfg.security = broker_security(args)?;
+    cfg.maps = paddock_proto::convert::shipped_bundles();
     let secured = cfg.security.is_some();
     let mut broker = Broker::bind(cfg).context("starting the broker")?;
     eprintln!(
@@ -264,6 +270,17 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
     if args.workers == 0 {
         bail!("--workers = 0: serve needs at least one worker");
     }
+    let parent_gone = || {
+        args.parent_pid
+            .is_some_and(|p| std::os::unix::process::parent_id() != p)
+    };
+    if parent_gone() {
+        bail!(
+            "--parent-pid {}: this server's parent is process {}",
+            args.parent_pid.unwrap_or_default(),
+            std::os::unix::process::parent_id()
+        );
+    }
     let tmp;
     let state = match &args.state {
         Some(s) => s.clone(),
@@ -306,8 +323,16 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
         "serving: {} workers x {threads} threads; clients connect to {front} (Ctrl-C stops)",
         args.workers
     );
-    while !stop.load(Ordering::Relaxed) && !broker.is_finished() {
+    while !stop.load(Ordering::Relaxed) && !broker.is_finished() && !parent_gone() {
         std::thread::sleep(Duration::from_millis(100));
+    }
+    if parent_gone() {
+        eprintln!("serve: the parent process has gone; stopping");
+        // a stop that hangs must not leave an orphan behind either
+        std::thread::spawn(|| {
+            std::thread::sleep(Duration::from_secs(10));
+            std::process::exit(1);
+        });
     }
     for w in workers {
         let _ = w.stop();
@@ -344,7 +369,8 @@ impl BrokerThread {
         Self::spawn(cfg, ctx)
     }
 
-    fn spawn(cfg: BrokerConfig, ctx: paddock_broker::zmq::Context) -> Result<Self> {
+    fn spawn(mut cfg: BrokerConfig, ctx: paddock_broker::zmq::Context) -> Result<Self> {
+        cfg.maps = paddock_proto::convert::shipped_bundles();
         let (tx, rx) = std::sync::mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();

@@ -17,7 +17,7 @@ mod tune_cmd;
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -116,6 +116,12 @@ fn main() {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
+    // folders of the user's own maps, looked up by name before the shipped ones
+    if let Some(v) = std::env::var_os("PADDOCK_MAPS") {
+        paddock_sim::shipped::add_map_dirs(
+            std::env::split_paths(&v).filter(|p| !p.as_os_str().is_empty()),
+        );
+    }
     let result = client_security(&cli).and_then(|()| match cli.command {
         Command::Tune(args) => tune_cmd::run(&args),
         Command::Perf(args) => perf::run(&args),
@@ -145,34 +151,41 @@ fn main() {
 }
 
 fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
-    use paddock_sim::track::{Circuit, DEFAULT_MAP, list_circuit_dirs, map_search_dirs};
+    use paddock_sim::shipped::{map_dirs, shipped_map_dir, shipped_maps};
+    use paddock_sim::track::{Circuit, DEFAULT_MAP, list_circuit_dirs};
+    let row = |source: &str, dir: &std::path::Path, path: String| match Circuit::load(dir) {
+        Ok(c) => serde_json::json!({
+            "name": c.name,
+            "source": source,
+            "path": path,
+            "hash": paddock_proto::read_map_dir(dir, &c.name).map(|b| b.hash).unwrap_or_default(),
+            "length_m": c.track.length(),
+            "raceline": c.track.raceline().is_some(),
+            "resolution": c.map.resolution(),
+            "cells": [c.map.width(), c.map.height()],
+            "default": source == "shipped" && c.name.eq_ignore_ascii_case(DEFAULT_MAP),
+        }),
+        Err(e) => serde_json::json!({
+            "name": dir.file_name().map(|n| n.to_string_lossy().to_string()),
+            "source": source,
+            "path": path,
+            "error": e.to_string(),
+        }),
+    };
     let mut rows = Vec::new();
-    let shipped = map_search_dirs();
-    for (source, dirs) in [("shipped", shipped.as_slice()), ("given", extra)] {
+    // shipped maps are compiled into this binary
+    for m in shipped_maps() {
+        let dir = shipped_map_dir(m).with_context(|| format!("shipped map {}", m.name))?;
+        rows.push(row("shipped", &dir, "(built in)".to_string()));
+    }
+    let added = map_dirs();
+    for (source, dirs) in [("PADDOCK_MAPS", added.as_slice()), ("given", extra)] {
         for d in dirs {
             if !d.is_dir() {
                 anyhow::bail!("not a directory of maps: {}", d.display());
             }
             for dir in list_circuit_dirs(d) {
-                let row = match Circuit::load(&dir) {
-                    Ok(c) => serde_json::json!({
-                        "name": c.name,
-                        "source": source,
-                        "path": dir.display().to_string(),
-                        "length_m": c.track.length(),
-                        "raceline": c.track.raceline().is_some(),
-                        "resolution": c.map.resolution(),
-                        "cells": [c.map.width(), c.map.height()],
-                        "default": source == "shipped" && c.name.eq_ignore_ascii_case(DEFAULT_MAP),
-                    }),
-                    Err(e) => serde_json::json!({
-                        "name": dir.file_name().map(|n| n.to_string_lossy().to_string()),
-                        "source": source,
-                        "path": dir.display().to_string(),
-                        "error": e.to_string(),
-                    }),
-                };
-                rows.push(row);
+                rows.push(row(source, &dir, dir.display().to_string()));
             }
         }
     }
@@ -181,13 +194,13 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
         return Ok(());
     }
     println!(
-        "{:<16} {:<8} {:>9} {:>9} {:>12}  path",
+        "{:<16} {:<12} {:>9} {:>9} {:>12}  path",
         "name", "source", "length_m", "raceline", "cells"
     );
     for r in &rows {
         if let Some(err) = r.get("error") {
             println!(
-                "{:<16} {:<8} error: {}",
+                "{:<16} {:<12} error: {}",
                 r["name"].as_str().unwrap_or("?"),
                 r["source"].as_str().unwrap_or("?"),
                 err.as_str().unwrap_or("?")
@@ -204,7 +217,7 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
             }
         );
         println!(
-            "{:<16} {:<8} {:>9.1} {:>9} {:>12}  {}",
+            "{:<16} {:<12} {:>9.1} {:>9} {:>12}  {}",
             name,
             r["source"].as_str().unwrap_or("?"),
             r["length_m"].as_f64().unwrap_or(0.0),

@@ -1,8 +1,10 @@
 """Maps by content hash: find a map directory and make its bundle.
 
 The hash is the broker's: SHA-256 over the map's files in name order, each as
-(name length u64 LE, name, data length u64 LE, data). A map is named by a shipped map
-name (looked up in ``PADDOCK_MAPS`` and the source tree's ``maps/``) or by a directory.
+(name length u64 LE, name, data length u64 LE, data). A map is named by a directory (or
+its map YAML), by the name of a folder in one of the ``PADDOCK_MAPS`` directories (both
+uploaded), or by the name of a map the server ships (listed in its status, by hash, so
+nothing is uploaded and nothing is looked up beside this package's files).
 """
 
 from __future__ import annotations
@@ -19,15 +21,13 @@ MAX_MAP_BYTES = 48 << 20
 
 
 def search_dirs() -> list[Path]:
-    """Where map names are looked up: each entry of ``PADDOCK_MAPS``, then ``maps/`` of
-    the source tree this package lives in."""
-    dirs = [Path(p) for p in os.environ.get("PADDOCK_MAPS", "").split(":") if p]
-    dirs.append(Path(__file__).resolve().parents[2] / "maps")
-    return dirs
+    """Where map names are looked up on this machine: each entry of ``PADDOCK_MAPS``."""
+    return [Path(p) for p in os.environ.get("PADDOCK_MAPS", "").split(os.pathsep) if p]
 
 
-def find_map_dir(map: str) -> Path:
-    """The directory of map ``map`` (a directory, a map YAML, or a shipped map name)."""
+def find_map_dir(map: str) -> Path | None:
+    """The local directory of map ``map`` (a directory, a map YAML, or the name of a
+    folder in a ``PADDOCK_MAPS`` directory); None when it is none of these."""
     p = Path(map)
     if p.is_dir():
         return p
@@ -39,8 +39,21 @@ def find_map_dir(map: str) -> Path:
         for entry in sorted(d.iterdir()):
             if entry.is_dir() and entry.name.lower() == map.lower():
                 return entry
-    searched = ", ".join(str(d) for d in search_dirs())
-    raise FileNotFoundError(f"map {map!r} not found (searched: {searched})")
+    return None
+
+
+def server_map(map: str, shipped: list[pb.MapRef]) -> pb.MapRef:
+    """The server's shipped map called ``map`` (case-insensitive), named as the caller
+    named it; FileNotFoundError naming every place looked in when there is none."""
+    for ref in shipped:
+        if ref.name.lower() == map.lower():
+            return pb.MapRef(name=map, hash=ref.hash)
+    local = ", ".join(str(d) for d in search_dirs()) or "none: PADDOCK_MAPS is not set"
+    names = ", ".join(sorted(r.name for r in shipped)) or "none"
+    raise FileNotFoundError(
+        f"map {map!r} not found: not a directory or map YAML, not in the PADDOCK_MAPS "
+        f"directories ({local}), and not a map the server ships ({names})"
+    )
 
 
 @dataclass(frozen=True)
@@ -71,9 +84,9 @@ def bundle_hash(files: list[tuple[str, bytes]]) -> str:
     return h.hexdigest()
 
 
-def read_bundle(map: str) -> MapBundle:
-    """Every file of the map's directory, hashed; named as the caller named it."""
-    d = find_map_dir(map)
+def read_bundle(map: str, d: Path) -> MapBundle:
+    """Every file of the map's directory ``d``, hashed; named ``map``, as the caller
+    named it."""
     files = []
     total = 0
     for f in sorted(d.iterdir(), key=lambda f: f.name.encode()):

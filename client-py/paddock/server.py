@@ -1,5 +1,10 @@
 """A local `paddock serve` (broker and workers in one process on loopback) that a
-learner on one machine connects to; started and stopped by the env or the tests."""
+learner on one machine connects to; started and stopped by the env or the tests.
+
+The server is given this process's id (``--parent-pid``) and stops by itself once this
+process is no longer its parent, so a learner that crashes or is killed (SIGKILL
+included) leaves no server behind. It watches its parent process rather than relying on
+Linux's parent-death signal, which fires when the *thread* that started it ends."""
 
 from __future__ import annotations
 
@@ -8,6 +13,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sysconfig
 import tempfile
 import time
 from pathlib import Path
@@ -17,11 +23,18 @@ from .transport import Connection
 
 
 def find_paddock() -> str:
-    """The `paddock` binary: ``$PADDOCK_BIN``, then PATH, then the source tree's cargo
-    target folder (``$CARGO_TARGET_DIR`` or ``target/``, release before debug)."""
+    """The `paddock` binary: ``$PADDOCK_BIN``; the one the wheel installed beside this
+    interpreter's scripts (a venv's ``bin/``, found without the venv being activated, or
+    the user scripts folder); PATH; then the source tree's cargo target folder
+    (``$CARGO_TARGET_DIR`` or ``target/``, release before debug)."""
     env = os.environ.get("PADDOCK_BIN")
     if env:
         return env
+    schemes = [sysconfig.get_default_scheme(), sysconfig.get_preferred_scheme("user")]
+    for scheme in schemes:
+        p = Path(sysconfig.get_path("scripts", scheme)) / "paddock"
+        if p.is_file() and os.access(p, os.X_OK):
+            return str(p)
     found = shutil.which("paddock")
     if found:
         return found
@@ -77,7 +90,9 @@ class LocalServer:
         for _ in range(3):  # a port taken between probing and binding: try another
             port = free_port()
             self.endpoint = f"tcp://127.0.0.1:{port}"
-            args = [self.binary, "serve", "--bind", self.endpoint]
+            # the server stops when this process is gone, even killed: no orphans
+            args = [self.binary, "serve", "--bind", self.endpoint,
+                    "--parent-pid", str(os.getpid())]
             if self.threads:
                 args += ["--threads", str(self.threads)]
             self._log.seek(0)

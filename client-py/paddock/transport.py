@@ -18,7 +18,7 @@ from google.protobuf.message import DecodeError, Message
 
 from . import errors, wire
 from ._proto import paddock_pb2 as pb
-from .maps import MapBundle, read_bundle
+from .maps import find_map_dir, read_bundle, server_map
 
 PROTOCOL_VERSION = 1
 DEFAULT_TIMEOUT = 30.0
@@ -73,7 +73,7 @@ class Connection:
         self._ctx = context or zmq.Context.instance()
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
-        self._maps: dict[str, MapBundle] = {}
+        self._maps: dict[str, pb.MapRef] = {}
         self._sock: zmq.Socket | None = None
         self._connect()
 
@@ -169,13 +169,20 @@ class Connection:
                 raise errors.UnknownType(3, "body", f"unexpected reply {body} to {field}")
 
     def map_ref(self, map: str) -> pb.MapRef:
-        """The reference of map ``map``, uploading it to the broker once per connection."""
-        b = self._maps.get(map)
-        if b is None:
-            b = read_bundle(map)
-            self.request("put_map", pb.PutMap(bundle=b.to_proto()), "map_stored")
-            self._maps[map] = b
-        return b.ref()
+        """The reference of map ``map``: a map on this machine (a directory, a map YAML,
+        a folder in ``PADDOCK_MAPS``) is uploaded to the broker once per connection;
+        otherwise the name of a map the broker ships (from its status)."""
+        ref = self._maps.get(map)
+        if ref is None:
+            d = find_map_dir(map)
+            if d is not None:
+                b = read_bundle(map, d)
+                self.request("put_map", pb.PutMap(bundle=b.to_proto()), "map_stored")
+                ref = b.ref()
+            else:
+                ref = server_map(map, list(self.status().maps))
+            self._maps[map] = ref
+        return ref
 
     def status(self, timeout: float | None = None) -> pb.BrokerStatus:
         return self.request("status_request", pb.StatusRequest(), "broker_status", timeout)

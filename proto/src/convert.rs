@@ -65,6 +65,30 @@ pub fn local_map(map: &str) -> Result<crate::MapBundle, Error> {
     })
 }
 
+/// The bundles of the maps shipped inside the binary ([`paddock_sim::shipped`]), each
+/// named by its map name; the same bundles as [`crate::read_map_dir`] makes of the
+/// project's map folders.
+pub fn shipped_bundles() -> Vec<crate::MapBundle> {
+    paddock_sim::shipped::shipped_maps()
+        .iter()
+        .map(|m| {
+            let files: Vec<crate::MapFile> = m
+                .files
+                .iter()
+                .map(|(name, data)| crate::MapFile {
+                    name: name.to_string(),
+                    data: data.to_vec(),
+                })
+                .collect();
+            crate::MapBundle {
+                hash: crate::bundle_hash(&files),
+                name: m.name.to_string(),
+                files,
+            }
+        })
+        .collect()
+}
+
 /// The [`crate::MapRef`] naming a bundle.
 pub fn map_ref(bundle: &crate::MapBundle) -> crate::MapRef {
     crate::MapRef {
@@ -549,6 +573,21 @@ mod tests {
             .unwrap()
             .dir
             .clone()
+    }
+
+    #[test]
+    fn shipped_bundles_are_the_project_map_folders() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps");
+        let bundles = shipped_bundles();
+        assert!(bundles.len() >= 3);
+        for b in &bundles {
+            crate::check_bundle(b).unwrap();
+            let folder = crate::read_map_dir(&root.join(&b.name), &b.name).unwrap();
+            assert_eq!(b.files, folder.files, "{}", b.name);
+            assert_eq!(b.hash, folder.hash, "{}", b.name);
+            // and a name resolves to the same bundle
+            assert_eq!(local_map(&b.name).unwrap().hash, b.hash);
+        }
     }
 
     #[test]

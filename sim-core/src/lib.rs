@@ -7,10 +7,12 @@
 //!
 //! ## Design
 //! - **Pure and deterministic.** All state is in plain values passed to `step`; there is no
-//!   global mutable state (the map cache only shares immutable maps). f64 state, a fixed
+//!   global mutable state (the map cache only shares immutable maps; the folders of a
+//!   user's maps are added once at start-up, [`shipped::add_map_dirs`]). f64 state, a fixed
 //!   timestep, one seeded PRNG per world ([`rng::Rng`]), and transcendental functions from
 //!   the `libm` crate, so the same seed and actions give the same bits on every host.
-//! - **No I/O** beyond loading maps, tracks and vehicle parameter files.
+//! - **No I/O** beyond loading maps, tracks and vehicle parameter files (a shipped map,
+//!   compiled in, is written once to the temporary directory and loaded from there).
 //! - **Fast.** The LIDAR and the dynamics are built for millions of steps per second.
 //!
 //! Start with [`prelude`].
@@ -22,6 +24,7 @@ pub mod lidar;
 pub mod map;
 pub mod params;
 pub mod rng;
+pub mod shipped;
 pub mod track;
 pub mod trackgen;
 pub mod world;

@@ -671,15 +671,16 @@ impl Circuit {
     }
 
     /// Resolve a map by name or path: an existing directory or YAML path is loaded as is;
-    /// otherwise `name` is looked up (case-insensitively) among the directories of
-    /// [`map_search_dirs`], extended by `extra_dirs`.
+    /// otherwise `name` is looked up (case-insensitively) among the maps in `extra_dirs`,
+    /// then in the folders added by [`crate::shipped::add_map_dirs`], then among the maps
+    /// shipped inside the library ([`crate::shipped`]).
     pub fn resolve(name: &str, extra_dirs: &[PathBuf]) -> Result<Arc<Circuit>, TrackError> {
         let p = Path::new(name);
         if p.exists() {
             return Circuit::load(p);
         }
         let mut dirs: Vec<PathBuf> = extra_dirs.to_vec();
-        dirs.extend(map_search_dirs());
+        dirs.extend(crate::shipped::map_dirs());
         for d in &dirs {
             for entry in list_circuit_dirs(d) {
                 if entry
@@ -691,13 +692,18 @@ impl Circuit {
                 }
             }
         }
+        if let Some(m) = crate::shipped::shipped_map(name) {
+            return Circuit::load(&crate::shipped::shipped_map_dir(m)?);
+        }
+        let shipped: Vec<&str> = crate::shipped::shipped_maps()
+            .iter()
+            .map(|m| m.name)
+            .collect();
+        let mut searched: Vec<String> = dirs.iter().map(|d| d.display().to_string()).collect();
+        searched.push(format!("the shipped maps ({})", shipped.join(", ")));
         Err(TrackError::UnknownMap {
             name: name.to_string(),
-            searched: dirs
-                .iter()
-                .map(|d| d.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
+            searched: searched.join(", "),
         })
     }
 
@@ -709,35 +715,6 @@ impl Circuit {
 
 /// The map used whenever no map is named.
 pub const DEFAULT_MAP: &str = "lakeside";
-
-/// Where shipped maps are looked for, in order: each directory in `PADDOCK_MAPS`
-/// (separated by `:`), `<executable dir>/maps`, `<executable dir>/../share/paddock/maps`,
-/// and the `maps/` folder of the source tree this library was built from.
-pub fn map_search_dirs() -> Vec<PathBuf> {
-    let mut dirs = Vec::new();
-    if let Ok(v) = std::env::var("PADDOCK_MAPS") {
-        dirs.extend(v.split(':').filter(|s| !s.is_empty()).map(PathBuf::from));
-    }
-    if let Ok(exe) = std::env::current_exe()
-        && let Some(bin) = exe.parent()
-    {
-        dirs.push(bin.join("maps"));
-        dirs.push(bin.join("../share/paddock/maps"));
-    }
-    dirs.push(Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps"));
-    dirs.retain(|d| d.is_dir());
-    let mut seen = Vec::new();
-    dirs.retain(|d| {
-        let c = d.canonicalize().unwrap_or_else(|_| d.clone());
-        if seen.contains(&c) {
-            false
-        } else {
-            seen.push(c);
-            true
-        }
-    });
-    dirs
-}
 
 /// The circuit directories inside `dir` (those holding a `*_map.yaml`), sorted by name.
 pub fn list_circuit_dirs(dir: &Path) -> Vec<PathBuf> {

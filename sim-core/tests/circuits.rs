@@ -78,12 +78,60 @@ fn circuits_are_shared_and_found_by_name() {
     let a = Circuit::resolve("lakeside", &[]).unwrap();
     let b = Circuit::resolve("LAKESIDE", &[]).unwrap();
     assert!(Arc::ptr_eq(&a, &b));
+    // by name, the map compiled into the library: the same map as the project's folder
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/lakeside");
     let c = Circuit::load(&dir).unwrap();
-    assert!(Arc::ptr_eq(&a, &c));
+    assert_eq!(a.map.content_hash(), c.map.content_hash());
+    assert_eq!(a.track.length().to_bits(), c.track.length().to_bits());
+    assert!(Arc::ptr_eq(&a, &Circuit::load(&a.dir).unwrap()));
     let q = Circuit::resolve("quarry", &[]).unwrap();
     assert!(!Arc::ptr_eq(&a.map, &q.map));
     assert_ne!(a.map.content_hash(), q.map.content_hash());
+}
+
+/// A fresh clone's tests, sharing one cargo target directory with another checkout,
+/// linked that checkout's build of this library and found maps through its source path
+/// (`circuits_are_shared_and_found_by_name` failed). Shipped maps now come from the
+/// library itself: every map of the project's `maps/` resolves by name to a folder
+/// outside the source tree, holding the same files.
+#[test]
+fn shipped_maps_are_not_found_through_a_source_path() {
+    let source = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .unwrap();
+    let dirs = list_circuit_dirs(&source.join("maps"));
+    assert_eq!(dirs.len(), paddock_sim::shipped::shipped_maps().len());
+    for d in dirs {
+        let name = d.file_name().unwrap().to_str().unwrap();
+        let c = Circuit::resolve(name, &[]).unwrap();
+        let found = c.dir.canonicalize().unwrap();
+        assert!(
+            !found.starts_with(&source),
+            "{name} found in {}",
+            found.display()
+        );
+        assert_eq!(
+            c.map.content_hash(),
+            Circuit::load(&d).unwrap().map.content_hash()
+        );
+        let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .map(|p| {
+                let n = p.file_name().unwrap().to_str().unwrap().to_string();
+                (n, std::fs::read(&p).unwrap())
+            })
+            .collect();
+        files.sort();
+        let m = paddock_sim::shipped::shipped_map(name).unwrap();
+        let shipped: Vec<(String, Vec<u8>)> = m
+            .files
+            .iter()
+            .map(|(n, data)| (n.to_string(), data.to_vec()))
+            .collect();
+        assert_eq!(files, shipped, "{name}: the shipped files are the folder's");
+    }
 }
 
 #[test]

@@ -64,6 +64,9 @@ pub struct BrokerConfig {
     /// sooner, and a thread that never slept needs no wake-up. Rollout tasks never arm
     /// it, and an idle broker never spins. Zero: always block.
     pub spin: Duration,
+    /// Maps stored at start and listed by name in the status (the shipped maps), so
+    /// clients name them without uploading them.
+    pub maps: Vec<paddock_proto::MapBundle>,
 }
 
 /// A broker open to the network: its key pair and, per endpoint, the directory of
@@ -95,6 +98,7 @@ impl BrokerConfig {
             security: None,
             local_backend: None,
             spin: DEFAULT_SPIN,
+            maps: Vec::new(),
         }
     }
 }
@@ -249,6 +253,9 @@ impl Broker {
     /// [`BrokerConfig::local_backend`] (an `inproc://` endpoint) in the same context.
     pub fn bind_in(cfg: BrokerConfig, ctx: zmq::Context) -> Result<Self, BrokerError> {
         let store = Store::open(&cfg.state_dir)?;
+        for bundle in &cfg.maps {
+            store.put_map(bundle)?;
+        }
         // the ZAP handler must be in place before the secured sockets bind
         let (auth, front_curve, back_curve) = match &cfg.security {
             None => (None, Curve::Off, Curve::Off),
@@ -858,6 +865,12 @@ impl Broker {
             env_sessions: self.sessions.len() as u32,
             sessions_replayed: self.sessions.stats().replayed,
             sessions_lost: self.sessions.stats().lost,
+            maps: self
+                .cfg
+                .maps
+                .iter()
+                .map(paddock_proto::convert::map_ref)
+                .collect(),
             errors: self
                 .stats
                 .errors

@@ -1,0 +1,86 @@
+"""What a Python user installs, away from the checkout: into a fresh venv in a temporary
+folder, first `pip install ./client-py` (not editable, with $PADDOCK_BIN, the binary
+under test), then the wheel scripts/wheel.sh builds from that binary. Each is run from a
+folder outside the checkout: shipped map names resolve through the server (nothing is
+read beside the installed package), a map given as a path is uploaded, and with the wheel
+the env starts the `paddock` binary the wheel installed, with nothing else in sight."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from importlib.metadata import version
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+USER = textwrap.dedent("""
+    import sys
+    import gymnasium as gym
+    import numpy as np
+    import paddock
+    from paddock.server import find_paddock
+
+    venv, harbour, binary = sys.argv[1], sys.argv[2], sys.argv[3]
+    assert paddock.__file__.startswith(venv), paddock.__file__
+    assert find_paddock() == binary, find_paddock()
+    for m in ("lakeside", "QUARRY", harbour):
+        env = gym.make("paddock/F110-v0", map=m, num_beams=108, time_limit=5.0, threads=1)
+        obs, _ = env.reset(seed=1)
+        obs, reward, terminated, truncated, _ = env.step(
+            np.zeros(env.action_space.shape, dtype=np.float32))
+        assert obs["scans"].shape == (1, 108) and not terminated
+        env.close()
+        print("stepped", m)
+""")
+
+
+def run(args: list[str], **kw: object) -> subprocess.CompletedProcess[str]:
+    p = subprocess.run(args, capture_output=True, text=True, **kw)  # type: ignore[call-overload]
+    assert p.returncode == 0, f"{args}: {p.stdout[-3000:]}\n{p.stderr[-3000:]}"
+    return p
+
+
+def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
+    binary = os.environ.get("PADDOCK_BIN")
+    built = run(["bash", str(ROOT / "scripts" / "wheel.sh"), str(tmp_path / "dist")])
+    wheel = Path(built.stdout.strip().splitlines()[-1])
+    assert wheel.is_file() and wheel.name.startswith("paddock-") and "-py3-none-linux" in wheel.name
+
+    venv = tmp_path / "venv"
+    py = str(venv / "bin" / "python")
+    run([sys.executable, "-m", "venv", str(venv)])
+    # the dependency versions this test run uses, so the fresh venv is like it
+    pins = tmp_path / "constraints.txt"
+    pins.write_text("".join(f"{d}=={version(d)}\n" for d in ("pyzmq", "protobuf", "gymnasium", "numpy")))
+    pip = [py, "-m", "pip", "install", "-q", "--disable-pip-version-check", "-c", str(pins)]
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    script = elsewhere / "user.py"
+    script.write_text(USER)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PADDOCK_BIN", "PADDOCK_MAPS", "CARGO_TARGET_DIR", "PYTHONPATH", "VIRTUAL_ENV")}
+    env["PATH"] = "/usr/bin:/bin"
+    harbour = str(ROOT / "maps" / "harbour")
+
+    # the package alone (the README's `pip install ./client-py`), given a binary
+    if binary:
+        # from a copy: building in place would leave build/ in the checkout
+        src = tmp_path / "client-py"
+        shutil.copytree(ROOT / "client-py", src,
+                        ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__", "tests"))
+        run(pip + [str(src)], cwd=elsewhere)
+        out = run([py, str(script), str(venv), harbour, binary], cwd=elsewhere,
+                  env={**env, "PADDOCK_BIN": binary})
+        assert out.stdout.count("stepped") == 3, out.stdout
+
+    # the wheel: the package and its binary, nothing else needed
+    run([py, "-m", "pip", "uninstall", "-q", "-y", "paddock"])
+    run(pip + [str(wheel)], cwd=elsewhere)
+    out = run([py, str(script), str(venv), harbour, str(venv / "bin" / "paddock")],
+              cwd=elsewhere, env=env)
+    assert out.stdout.count("stepped") == 3, out.stdout
