@@ -12,14 +12,18 @@
 //! - The steering angle a driver may read is the last steering command sent (the car does
 //!   not measure it).
 //! - Scans are resampled to the beam layout the driver was built for (the simulator's
-//!   [`LidarConfig`]: 1080 beams over 4.7 rad by default) by nearest angle; invalid
-//!   returns (NaN, outside `[range_min, range_max]`) read as the driver's max range.
+//!   [`LidarConfig`]: 1080 beams over 4.7 rad by default) by nearest angle, read with
+//!   REP 117's semantics ([`crate::scan`]): no return (`+inf`) as max range, too close
+//!   (`-inf`) as `range_min`, an invalid beam (NaN, an error code) as the nearer of its
+//!   nearest known neighbours, never as open road.
 //! - A LIDAR driver acts on every new scan, a pose driver on every new odometry message,
 //!   so the loop follows the sensors' clock (and a faster-than-real-time SIL car). A
 //!   command is also sent at least every `1 / rate_hz` seconds, so the stale-sensor stop
 //!   reaches the car even when the sensors fall silent.
 //! - Latency is the time from the triggering message's arrival to the command's publish.
 
+use std::cell::Cell;
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -35,6 +39,7 @@ use crate::BridgeError;
 use crate::msg::{AckermannDrive, AckermannDriveStamped, Header, LaserScan, Odometry, Time};
 use crate::ros::{RosConfig, RosNode, publish, take_newest};
 use crate::safety::{Safety, SafetyConfig, SafetyCounters, StopReason, Verdict};
+use crate::scan::{ScanAdapter, check_limits};
 
 /// Which driver with which parameters: a `paddock tune` result or a registry name.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,71 +125,6 @@ impl DriverSpec {
     }
 }
 
-/// Maps a LaserScan's beams onto the driver's beam layout by nearest angle.
-#[derive(Debug, Clone, PartialEq)]
-struct ScanAdapter {
-    /// Geometry of the incoming scans this was built for.
-    key: (usize, u32, u32),
-    /// Source beam of each target beam.
-    index: Vec<usize>,
-}
-
-impl ScanAdapter {
-    fn new(scan: &LaserScan, target: &LidarConfig) -> Result<Self, String> {
-        let n = scan.ranges.len();
-        let (amin, inc) = (scan.angle_min as f64, scan.angle_increment as f64);
-        if n == 0 {
-            return Err("scan has no ranges".into());
-        }
-        if !(amin.is_finite() && inc.is_finite()) || (n > 1 && inc == 0.0) {
-            return Err(format!(
-                "scan geometry angle_min = {amin}, angle_increment = {inc} is unusable"
-            ));
-        }
-        let m = target.num_beams;
-        let step = if m > 1 {
-            target.fov / (m - 1) as f64
-        } else {
-            0.0
-        };
-        let index = (0..m)
-            .map(|j| {
-                let a = -0.5 * target.fov + j as f64 * step;
-                let i = if n > 1 {
-                    ((a - amin) / inc).round()
-                } else {
-                    0.0
-                };
-                i.clamp(0.0, (n - 1) as f64) as usize
-            })
-            .collect();
-        Ok(Self {
-            key: Self::key(scan),
-            index,
-        })
-    }
-
-    fn key(scan: &LaserScan) -> (usize, u32, u32) {
-        (
-            scan.ranges.len(),
-            scan.angle_min.to_bits(),
-            scan.angle_increment.to_bits(),
-        )
-    }
-
-    fn apply(&self, scan: &LaserScan, max_range: f64, out: &mut [f64]) {
-        let (lo, hi) = (scan.range_min as f64, scan.range_max as f64);
-        for (o, &i) in out.iter_mut().zip(&self.index) {
-            let r = scan.ranges[i] as f64;
-            *o = if r.is_finite() && r >= lo && r <= hi {
-                r.min(max_range)
-            } else {
-                max_range
-            };
-        }
-    }
-}
-
 /// The driver, its view of the car, and the safety layer; no I/O.
 pub struct DriveCore {
     driver: Box<dyn Driver>,
@@ -261,11 +201,11 @@ impl DriveCore {
     /// Take a scan that arrived at `now`. A scan with unusable geometry is dropped (and
     /// logged); the previous one then ages towards the stale-sensor stop.
     pub fn on_scan(&mut self, scan: &LaserScan, now: f64) -> bool {
-        if self
-            .adapter
-            .as_ref()
-            .is_none_or(|a| a.key != ScanAdapter::key(scan))
-        {
+        if let Err(e) = check_limits(scan) {
+            tracing::warn!(error = %e, "dropping scan");
+            return false;
+        }
+        if self.adapter.as_ref().is_none_or(|a| !a.fits(scan)) {
             match ScanAdapter::new(scan, &self.lidar) {
                 Ok(a) => self.adapter = Some(a),
                 Err(e) => {
@@ -274,7 +214,7 @@ impl DriveCore {
                 }
             }
         }
-        if let Some(a) = &self.adapter {
+        if let Some(a) = &mut self.adapter {
             a.apply(scan, self.lidar.max_range, &mut self.obs.scans);
         }
         self.safety.on_scan(scan, self.speed, now);
@@ -316,12 +256,24 @@ impl DriveCore {
         true
     }
 
-    /// The command to send at `now`.
-    pub fn command(&mut self, now: f64) -> Verdict {
+    /// The command to send at `now`; an error when the driver panics (the caller then
+    /// stops the car and ends: a driver that panicked once is not trusted again).
+    pub fn command(&mut self, now: f64) -> Result<Verdict, BridgeError> {
         let age = |t: Option<f64>| t.map(|t| (now - t).max(0.0));
         let ready = self.odom_at.is_some() && (!self.lidar_driver || self.scan_at.is_some());
         let requested = if ready {
-            self.driver.act(&self.obs, 0)
+            let (driver, obs) = (&mut self.driver, &self.obs);
+            catch_unwind(AssertUnwindSafe(|| driver.act(obs, 0))).map_err(|panic| {
+                let message = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "panicked".to_string());
+                BridgeError::Driver {
+                    driver: self.driver.name().to_string(),
+                    message: format!("panicked: {message}"),
+                }
+            })?
         } else {
             Action::default()
         };
@@ -336,7 +288,7 @@ impl DriveCore {
             _ => {}
         }
         self.last = verdict.stop;
-        verdict
+        Ok(verdict)
     }
 }
 
@@ -419,8 +371,34 @@ fn wall_clock_stamp() -> Time {
     Time::from_secs(epoch_ns() as f64 * 1e-9)
 }
 
-/// Run `core` as a ROS 2 node until `stop` is set (Ctrl-C) or `options.seconds` pass,
-/// then send zero speed.
+/// Sends zero speed (five times, 10 ms apart, so that a lossy link still delivers it)
+/// when dropped: on the normal end of the loop, on an error return and while unwinding
+/// from a panic, so no way out of [`run_drive`] leaves the last command in place.
+struct ZeroSpeedOnExit<F: Fn(&Verdict) -> bool> {
+    send: F,
+}
+
+impl<F: Fn(&Verdict) -> bool> Drop for ZeroSpeedOnExit<F> {
+    fn drop(&mut self) {
+        let halt = Verdict {
+            action: Action::new(0.0, 0.0),
+            stop: None,
+            clamped: false,
+        };
+        for _ in 0..5 {
+            (self.send)(&halt);
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        // a reliable writer repeats unacknowledged samples: give it a moment before the
+        // participant goes away
+        std::thread::sleep(Duration::from_millis(50));
+        tracing::info!("zero speed sent");
+    }
+}
+
+/// Run `core` as a ROS 2 node until `stop` is set (a signal) or `options.seconds` pass.
+/// Every way out sends zero speed first: the normal end, an error (the driver panicked:
+/// [`BridgeError::Driver`]) and a panic in the loop itself.
 pub fn run_drive(
     mut core: DriveCore,
     ros: &RosConfig,
@@ -453,18 +431,18 @@ pub fn run_drive(
     let mut end_to_end = Vec::new();
     // the newest sensor stamp and when it arrived: commands are stamped on the
     // sensors' clock (sim time on the SIL car) plus the time spent since
-    let mut sensor_clock: Option<(Time, f64)> = None;
+    let sensor_clock: Cell<Option<(Time, f64)>> = Cell::new(None);
     let (mut commands, mut scans, mut odoms) = (0u64, 0u64, 0u64);
-    let stamp_at = |clock: &Option<(Time, f64)>, t: f64| match clock {
+    let stamp_at = |t: f64| match sensor_clock.get() {
         Some((stamp, at)) if !stamp.is_zero() => Time::from_secs(stamp.as_secs() + (t - at)),
         _ => wall_clock_stamp(),
     };
-    let send = |v: &Verdict, stamp: Time| {
+    let send = |v: &Verdict| {
         publish(
             &drive_pub,
             &topics.drive,
             AckermannDriveStamped {
-                header: Header::new(stamp, &frame),
+                header: Header::new(stamp_at(now()), &frame),
                 drive: AckermannDrive {
                     steering_angle: v.action.steer as f32,
                     speed: v.action.speed as f32,
@@ -473,6 +451,7 @@ pub fn run_drive(
             },
         )
     };
+    let stop_guard = ZeroSpeedOnExit { send: &send };
     loop {
         if stop.load(Ordering::Relaxed) || options.seconds.is_some_and(|s| now() >= s) {
             break;
@@ -483,7 +462,7 @@ pub fn run_drive(
             let t = now();
             odoms += 1;
             if core.on_odom(&odom, t) {
-                sensor_clock = Some((odom.header.stamp, t));
+                sensor_clock.set(Some((odom.header.stamp, t)));
                 if !core.lidar_driver() {
                     trigger = Some((t, source));
                 }
@@ -493,7 +472,7 @@ pub fn run_drive(
             let t = now();
             scans += 1;
             if core.on_scan(&scan, t) {
-                sensor_clock = Some((scan.header.stamp, t));
+                sensor_clock.set(Some((scan.header.stamp, t)));
                 if core.lidar_driver() {
                     trigger = Some((t, source));
                 }
@@ -501,8 +480,10 @@ pub fn run_drive(
         }
         let t = now();
         if trigger.is_some() || t >= next_tick {
-            let verdict = core.command(t);
-            send(&verdict, stamp_at(&sensor_clock, t));
+            let verdict = core.command(t).inspect_err(|e| {
+                tracing::error!(error = %e, "stopping the car: the driver failed");
+            })?;
+            send(&verdict);
             commands += 1;
             if let Some((arrived, source)) = trigger {
                 let l = now() - arrived;
@@ -522,16 +503,8 @@ pub fn run_drive(
         }
         std::thread::sleep(Duration::from_micros(250));
     }
-    // Clean stop: zero speed, repeated so that a lossy link still delivers it.
-    let halt = Verdict {
-        action: Action::new(0.0, 0.0),
-        stop: None,
-        clamped: false,
-    };
-    for _ in 0..5 {
-        send(&halt, stamp_at(&sensor_clock, now()));
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    // the clean stop
+    drop(stop_guard);
     let latency = LatencySummary::from_samples(&latencies);
     let e2e = LatencySummary::from_samples(&end_to_end);
     let summary = DriveSummary {
@@ -605,53 +578,21 @@ mod tests {
     }
 
     #[test]
-    fn adapter_resamples_a_1081_beam_scan_by_angle() {
-        let mut s = scan(1081, 4.712_389, 5.0);
-        s.ranges[540] = 1.5; // straight ahead
-        s.ranges[0] = f32::NAN;
-        s.ranges[1] = f32::INFINITY;
-        let target = LidarConfig::default();
-        let a = ScanAdapter::new(&s, &target).unwrap();
-        let mut out = vec![0.0; target.num_beams];
-        a.apply(&s, target.max_range, &mut out);
-        // target beams 539/540 straddle 0 rad; one of them reads the 1.5 m return
-        assert!(
-            out[539] == 1.5 || out[540] == 1.5,
-            "{} {}",
-            out[539],
-            out[540]
-        );
-        assert_eq!(out[0], target.max_range);
-        assert!(
-            out[1..530]
-                .iter()
-                .all(|&r| r == 5.0 || r == target.max_range)
-        );
-        let mut one = scan(2, 1.0, 1.0);
-        one.ranges.pop();
-        one.angle_increment = 0.0;
-        assert!(ScanAdapter::new(&one, &target).is_ok());
-        let mut bad = scan(10, 1.0, 1.0);
-        bad.angle_increment = f32::NAN;
-        assert!(ScanAdapter::new(&bad, &target).is_err());
-    }
-
-    #[test]
     fn core_waits_for_sensors_then_drives_then_stops_when_stale() {
         let mut c = gap_core(SafetyConfig {
             max_speed: 3.0,
             ..SafetyConfig::default()
         });
         assert!(c.lidar_driver());
-        let v = c.command(0.0);
+        let v = c.command(0.0).unwrap();
         assert!(matches!(v.stop, Some(StopReason::StaleOdom { age: None })));
         assert!(c.on_odom(&odom(0.0, 0.0, 1.0), 0.0));
         assert!(c.on_scan(&scan(1080, 4.7, 8.0), 0.01));
-        let v = c.command(0.02);
+        let v = c.command(0.02).unwrap();
         assert_eq!(v.stop, None);
         assert!(v.action.speed > 0.0 && v.action.speed <= 3.0, "{v:?}");
         // nothing new for 0.3 s: stale, zero speed
-        let v = c.command(0.32);
+        let v = c.command(0.32).unwrap();
         assert!(
             matches!(v.stop, Some(StopReason::StaleOdom { .. })),
             "{v:?}"
@@ -669,7 +610,7 @@ mod tests {
             *r = 0.6; // 0.15 s at 4 m/s
         }
         c.on_scan(&s, 0.0);
-        let v = c.command(0.01);
+        let v = c.command(0.01).unwrap();
         assert!(
             matches!(v.stop, Some(StopReason::Emergency { .. })),
             "{v:?}"

@@ -2,8 +2,7 @@
 //! recordings to MCAP and their export to the reality-gap CSV.
 
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -26,13 +25,16 @@ pub struct BridgeArgs {
 #[derive(Subcommand)]
 enum BridgeCommand {
     /// Run a driver on the car: subscribe /scan and /odom, publish /drive, behind the
-    /// safety layer (stale-sensor stop, clamps, time-to-collision stop, stop on Ctrl-C).
+    /// safety layer (stale-sensor stop, clamps, time-to-collision stop; zero speed on
+    /// every exit: SIGINT, SIGTERM, SIGHUP, a failing driver).
     Drive(DriveArgs),
     /// The software-in-the-loop car: the simulator with the car's topics, in real time.
     Sil(SilArgs),
-    /// Record /scan, /odom and /drive to an MCAP file (a ROS 2 bag).
+    /// Record /scan, /odom and /drive to an MCAP file (a ROS 2 bag), finalised on SIGINT,
+    /// SIGTERM and SIGHUP.
     Record(RecordArgs),
-    /// Export an MCAP recording to the reality-gap CSV (t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate).
+    /// Export a recording (MCAP, rosbag2 bag folder, .db3) to the reality-gap CSV
+    /// (t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate).
     ExportCsv(ExportArgs),
 }
 
@@ -161,6 +163,10 @@ struct DriveArgs {
     /// (0: every beam, the classic per-beam TTC).
     #[arg(long, default_value_t = 0.2)]
     ttc_corridor: f64,
+    /// Stop while more than this fraction of the scan's beams within 20 degrees of
+    /// straight ahead are invalid (REP 117: NaN or an error code; 1: never).
+    #[arg(long, default_value_t = 0.25)]
+    max_invalid_ahead: f64,
     /// Least command rate, Hz (commands also follow every new sensor message).
     #[arg(long, default_value_t = 40.0)]
     rate_hz: f64,
@@ -236,7 +242,8 @@ struct RecordArgs {
 
 #[derive(Args)]
 struct ExportArgs {
-    /// The MCAP recording.
+    /// The recording: an MCAP file (one never finalised is read up to its last complete
+    /// chunk), a rosbag2 bag folder (SQLite3 or MCAP storage) or a `.db3` file.
     recording: PathBuf,
     #[arg(long)]
     out: PathBuf,
@@ -255,13 +262,45 @@ pub fn run(args: &BridgeArgs) -> Result<()> {
     }
 }
 
-/// A flag set by Ctrl-C (SIGINT) and SIGTERM.
-fn stop_flag() -> Result<Arc<AtomicBool>> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let s = stop.clone();
-    ctrlc::set_handler(move || s.store(true, Ordering::Relaxed))
-        .context("installing the Ctrl-C handler")?;
-    Ok(stop)
+/// Set by SIGINT (Ctrl-C), SIGTERM (systemd, docker stop, launch) and SIGHUP (the
+/// terminal or SSH session closing): each ends a node through its clean stop (the drive
+/// node's zero-speed command, the recorder's finalised MCAP).
+static STOP: AtomicBool = AtomicBool::new(false);
+/// The signal that set [`STOP`].
+static STOP_SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+extern "C" fn on_stop_signal(signal: std::ffi::c_int) {
+    // only atomic stores: async-signal-safe
+    STOP_SIGNAL.store(signal, Ordering::Relaxed);
+    STOP.store(true, Ordering::Relaxed);
+}
+
+/// Install the stop handler for SIGINT, SIGTERM and SIGHUP.
+fn stop_flag() -> Result<&'static AtomicBool> {
+    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
+    let action = SigAction::new(
+        SigHandler::Handler(on_stop_signal),
+        SaFlags::SA_RESTART,
+        SigSet::empty(),
+    );
+    for signal in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
+        // SAFETY: the handler only stores to atomics, which is async-signal-safe, and no
+        // other handler of ours is replaced (the bridge commands install none else)
+        unsafe { sigaction(signal, &action) }
+            .with_context(|| format!("installing the {signal} handler"))?;
+    }
+    Ok(&STOP)
+}
+
+/// Say which signal ended a node, if one did.
+fn report_signal() {
+    let signal = STOP_SIGNAL.load(Ordering::Relaxed);
+    if signal != 0 {
+        let name = nix::sys::signal::Signal::try_from(signal)
+            .map(|s| s.as_str())
+            .unwrap_or("a signal");
+        eprintln!("stopped by {name}");
+    }
 }
 
 fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
@@ -304,16 +343,20 @@ fn drive(a: &DriveArgs) -> Result<()> {
             ttc_threshold: a.ttc,
             ttc_release: a.ttc_release,
             corridor_half_width: a.ttc_corridor,
+            max_invalid_ahead: a.max_invalid_ahead,
+            ..SafetyConfig::default()
         },
         ..DriveOptions::default()
     };
     let core = DriveCore::new(driver, options.lidar.clone(), options.safety)?;
     let stop = stop_flag()?;
     eprintln!(
-        "driving {} (map {}) on {} -> {}, domain {}; Ctrl-C stops the car",
+        "driving {} (map {}) on {} -> {}, domain {}; Ctrl-C, SIGTERM or SIGHUP stops the car",
         spec.name, circuit.name, ros.topics.scan, ros.topics.drive, ros.domain_id
     );
-    let s = run_drive(core, &ros, &options, &stop)?;
+    let s = run_drive(core, &ros, &options, stop);
+    report_signal();
+    let s = s?;
     let l = &s.latency;
     let c = &s.safety;
     println!(
@@ -332,8 +375,8 @@ fn drive(a: &DriveArgs) -> Result<()> {
         );
     }
     println!(
-        "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} clamped, {} invalid",
-        c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.clamped, c.invalid
+        "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} blind-ahead stops, {} clamped, {} invalid",
+        c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.blind, c.clamped, c.invalid
     );
     Ok(())
 }
@@ -378,7 +421,9 @@ fn sil(a: &SilArgs) -> Result<()> {
         "SIL car on {} at {}x real time, domain {}; Ctrl-C ends",
         a.map, a.rate, ros.domain_id
     );
-    let s = run_sil(&options, &ros, &stop)?;
+    let s = run_sil(&options, &ros, stop);
+    report_signal();
+    let s = s?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());
@@ -424,8 +469,10 @@ fn rec(a: &RecordArgs) -> Result<()> {
             seconds: a.seconds,
             clock,
         },
-        &stop,
-    )?;
+        stop,
+    );
+    report_signal();
+    let s = s?;
     for (topic, n) in &s.messages {
         println!("{topic}: {n} messages");
     }
@@ -439,7 +486,10 @@ fn export(a: &ExportArgs) -> Result<()> {
         odom: a.odom_topic.clone(),
         ..Default::default()
     };
-    let rows = export_csv(&a.recording, &a.out, &topics)?;
+    let (rows, truncation) = export_csv(&a.recording, &a.out, &topics)?;
+    if let Some(t) = truncation {
+        eprintln!("{}: {t}", a.recording.display());
+    }
     println!("wrote {} ({rows} rows)", a.out.display());
     Ok(())
 }
