@@ -5,6 +5,8 @@
   leaves the car stopped: the last command a Cyclone subscriber sees on /drive (with
   ackermann_mux's QoS) is zero speed, though the sensors are still fresh and the driver
   was commanding speed.
+- A sensor that keeps publishing on time but re-sends old data (its stamps stand still)
+  stops the car: staleness is judged by header stamp as well as arrival.
 - `paddock bridge record` ended by any of those signals writes a finalised MCAP that the
   `mcap` Python library (Foxglove's reference reader) opens, summary and all.
 """
@@ -74,6 +76,47 @@ def test_every_signal_stops_the_car(paddock, domain_id, sig):
     assert after, failure(proc, f"no command after {sig.name}: the zero-speed stop is missing")
     last = after[-1].drive
     assert last.speed == 0.0 and last.steering_angle == 0.0, after[-5:]
+
+
+def test_a_sensor_resending_old_data_stops_the_car(paddock, domain_id):
+    car = CycloneRosNode(domain_id)
+    scan_pub = car.publisher("/scan", LaserScan, default_qos(20))
+    odom_pub = car.publisher("/odom", Odometry, default_qos(10))
+    drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
+    proc = paddock(
+        "drive", "--policy", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
+    )
+    x, period = 0.0, 0.025
+
+    def feed(seconds, stamp=None):
+        """Sensors every 25 ms; `stamp` fixed: the drivers re-send their old message."""
+        nonlocal x
+        got = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            s = stamp or stamp_now()
+            odom_pub.write(odometry(s, x, 1.5))
+            scan_pub.write(corridor_scan(s, left=0.8, right=1.2))
+            x += 1.5 * period
+            time.sleep(period)
+            got.extend(take_all(drive_sub))
+        return got
+
+    moving = []
+    deadline = time.monotonic() + DISCOVERY_S
+    while not moving and time.monotonic() < deadline and proc.alive():
+        moving = [c for c in feed(0.25) if c.drive.speed > 0.0]
+    assert moving, failure(proc, "no /drive command with speed reached Cyclone")
+    assert feed(0.5)[-1].drive.speed > 0.0
+    # the drivers hang, re-sending their last message at the usual rate
+    resent = feed(1.0, stamp=stamp_now())
+    assert len(resent) >= 20, failure(proc, f"{len(resent)} commands in 1 s")
+    tail = resent[len(resent) // 2 :]
+    assert all(c.drive.speed == 0.0 for c in tail), failure(proc, f"still driving: {tail[-3:]}")
+    # fresh data again: the car drives on
+    again = feed(1.0)
+    assert again and again[-1].drive.speed > 0.0, again[-3:]
+    assert proc.stop() == 0, failure(proc, "exit status")
 
 
 @pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: s.name)

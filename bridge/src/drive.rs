@@ -36,8 +36,12 @@ use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 
 use crate::BridgeError;
-use crate::msg::{AckermannDrive, AckermannDriveStamped, Header, LaserScan, Odometry, Time};
-use crate::ros::{RosConfig, RosNode, publish, take_newest};
+use crate::freshness::{Freshness, SensorClock};
+use crate::mount::LaserMount;
+use crate::msg::{
+    AckermannDrive, AckermannDriveStamped, Header, LaserScan, Odometry, TFMessage, Time,
+};
+use crate::ros::{RosConfig, RosNode, publish, take_all, take_newest};
 use crate::safety::{Safety, SafetyConfig, SafetyCounters, StopReason, Verdict};
 use crate::scan::{ScanAdapter, check_limits};
 
@@ -132,9 +136,11 @@ pub struct DriveCore {
     lidar: LidarConfig,
     safety: Safety,
     adapter: Option<ScanAdapter>,
+    /// Where the car's laser sits (default: where the driver's does).
+    mount: LaserMount,
     obs: Observation,
-    scan_at: Option<f64>,
-    odom_at: Option<f64>,
+    scan_clock: SensorClock,
+    odom_clock: SensorClock,
     speed: f64,
     last: Option<StopReason>,
 }
@@ -171,15 +177,20 @@ impl DriveCore {
             progress: vec![0.0],
             slip_angles: vec![0.0],
         };
+        let drift = safety.max_clock_drift;
+        let mount = LaserMount::ahead(lidar.mount_offset);
+        let mut safety = Safety::new(safety)?;
+        safety.set_mount(mount);
         Ok(Self {
             driver,
             lidar_driver,
             lidar,
-            safety: Safety::new(safety)?,
+            safety,
             adapter: None,
+            mount,
             obs,
-            scan_at: None,
-            odom_at: None,
+            scan_clock: SensorClock::new(drift),
+            odom_clock: SensorClock::new(drift),
             speed: 0.0,
             last: None,
         })
@@ -198,15 +209,37 @@ impl DriveCore {
         &self.safety
     }
 
-    /// Take a scan that arrived at `now`. A scan with unusable geometry is dropped (and
-    /// logged); the previous one then ages towards the stale-sensor stop.
+    /// Where the car's laser sits: scans are re-projected to the driver's laser, and the
+    /// safety layer measures from `base_link`.
+    pub fn set_laser_mount(&mut self, mount: LaserMount) -> Result<(), BridgeError> {
+        mount
+            .validate()
+            .map_err(|e| BridgeError::config("laser mount", format!("{mount:?}"), &e))?;
+        if mount != self.mount {
+            self.mount = mount;
+            self.adapter = None;
+            self.safety.set_mount(mount);
+        }
+        Ok(())
+    }
+
+    pub fn laser_mount(&self) -> LaserMount {
+        self.mount
+    }
+
+    /// Take a scan that arrived at `now`. A scan with unusable geometry, or one whose
+    /// stamp is not newer than the last (a re-send), is dropped (and logged); the
+    /// previous one then ages towards the stale-sensor stop.
     pub fn on_scan(&mut self, scan: &LaserScan, now: f64) -> bool {
         if let Err(e) = check_limits(scan) {
             tracing::warn!(error = %e, "dropping scan");
             return false;
         }
+        if !fresh(&mut self.scan_clock, scan.header.stamp, now, "scan") {
+            return false;
+        }
         if self.adapter.as_ref().is_none_or(|a| !a.fits(scan)) {
-            match ScanAdapter::new(scan, &self.lidar) {
+            match ScanAdapter::mounted(scan, &self.lidar, &self.mount) {
                 Ok(a) => self.adapter = Some(a),
                 Err(e) => {
                     tracing::warn!(error = %e, "dropping scan");
@@ -218,11 +251,11 @@ impl DriveCore {
             a.apply(scan, self.lidar.max_range, &mut self.obs.scans);
         }
         self.safety.on_scan(scan, self.speed, now);
-        self.scan_at = Some(now);
         true
     }
 
-    /// Take odometry that arrived at `now`; a message with non-finite numbers is dropped.
+    /// Take odometry that arrived at `now`; a message with non-finite numbers, or not
+    /// newer than the last, is dropped.
     pub fn on_odom(&mut self, odom: &Odometry, now: f64) -> bool {
         let p = &odom.pose.pose;
         let t = &odom.twist.twist;
@@ -239,6 +272,9 @@ impl DriveCore {
             tracing::warn!(?values, "dropping odometry with non-finite values");
             return false;
         }
+        if !fresh(&mut self.odom_clock, odom.header.stamp, now, "odometry") {
+            return false;
+        }
         let o = &mut self.obs;
         o.poses_x[0] = p.position.x;
         o.poses_y[0] = p.position.y;
@@ -252,15 +288,14 @@ impl DriveCore {
             0.0
         };
         self.speed = t.linear.x;
-        self.odom_at = Some(now);
         true
     }
 
     /// The command to send at `now`; an error when the driver panics (the caller then
     /// stops the car and ends: a driver that panicked once is not trusted again).
     pub fn command(&mut self, now: f64) -> Result<Verdict, BridgeError> {
-        let age = |t: Option<f64>| t.map(|t| (now - t).max(0.0));
-        let ready = self.odom_at.is_some() && (!self.lidar_driver || self.scan_at.is_some());
+        let (scan_age, odom_age) = (self.scan_clock.age(now), self.odom_clock.age(now));
+        let ready = odom_age.is_some() && (!self.lidar_driver || scan_age.is_some());
         let requested = if ready {
             let (driver, obs) = (&mut self.driver, &self.obs);
             catch_unwind(AssertUnwindSafe(|| driver.act(obs, 0))).map_err(|panic| {
@@ -278,9 +313,9 @@ impl DriveCore {
             Action::default()
         };
         let needs_scan = self.lidar_driver || self.safety.needs_scan();
-        let verdict =
-            self.safety
-                .filter(requested, age(self.scan_at), age(self.odom_at), needs_scan);
+        let verdict = self
+            .safety
+            .filter(requested, scan_age, odom_age, needs_scan);
         self.obs.steering_angles[0] = verdict.action.steer;
         match (&self.last, &verdict.stop) {
             (None, Some(r)) => tracing::warn!(reason = %r, "stopping the car"),
@@ -289,6 +324,26 @@ impl DriveCore {
         }
         self.last = verdict.stop;
         Ok(verdict)
+    }
+}
+
+/// Let `clock` judge a message stamped `stamp` arriving at `now`; log a refusal.
+fn fresh(clock: &mut SensorClock, stamp: Time, now: f64, what: &str) -> bool {
+    let secs = if stamp.is_zero() {
+        0.0
+    } else {
+        stamp.as_secs()
+    };
+    match clock.on_message(secs, now) {
+        Freshness::Accepted => true,
+        Freshness::NotNewer { behind } => {
+            tracing::warn!(
+                sensor = what,
+                behind_s = behind,
+                "dropping a message not newer than the last (re-sent?)"
+            );
+            false
+        }
     }
 }
 
@@ -301,6 +356,9 @@ pub struct DriveOptions {
     pub seconds: Option<f64>,
     pub lidar: LidarConfig,
     pub safety: SafetyConfig,
+    /// The laser's mount on the car; None: from `/tf_static` (`frames.base` -> the
+    /// laser frame) once a transform arrives, the driver's laser position until then.
+    pub laser_mount: Option<LaserMount>,
 }
 
 impl Default for DriveOptions {
@@ -310,6 +368,7 @@ impl Default for DriveOptions {
             seconds: None,
             lidar: LidarConfig::default(),
             safety: SafetyConfig::default(),
+            laser_mount: None,
         }
     }
 }
@@ -358,6 +417,10 @@ pub struct DriveSummary {
     /// meaningful when sensor driver and bridge share a host clock) to the publish.
     pub end_to_end: LatencySummary,
     pub safety: SafetyCounters,
+    /// The laser mount in use at the end, and where it came from ("flags",
+    /// "/tf_static", or "default": the driver's laser position).
+    pub laser_mount: LaserMount,
+    pub laser_mount_source: &'static str,
 }
 
 fn epoch_ns() -> i64 {
@@ -418,6 +481,16 @@ pub fn run_drive(
     let odom_sub = node.subscription::<Odometry>(&topics.odom)?;
     let drive_pub = node.publisher::<AckermannDriveStamped>(&topics.drive)?;
     let frame = ros.frames.base.clone();
+    let mut mount_source = "default";
+    let tf_static_sub = match options.laser_mount {
+        Some(mount) => {
+            core.set_laser_mount(mount)?;
+            mount_source = "flags";
+            None
+        }
+        None => Some(node.static_subscription::<TFMessage>(&topics.tf_static)?),
+    };
+    let mut scan_frame: Option<String> = None;
     tracing::info!(
         driver = core.driver_name(),
         scan = %topics.scan, odom = %topics.odom, drive = %topics.drive,
@@ -468,9 +541,39 @@ pub fn run_drive(
                 }
             }
         }
+        if let Some(sub) = &tf_static_sub {
+            for tf in take_all(sub, &topics.tf_static) {
+                let laser = scan_frame.as_deref().unwrap_or(&ros.frames.laser);
+                for t in &tf.transforms {
+                    if t.header.frame_id != ros.frames.base || t.child_frame_id != laser {
+                        continue;
+                    }
+                    match LaserMount::from_transform(&t.transform) {
+                        Ok(mount) => {
+                            if mount != core.laser_mount() || mount_source != "/tf_static" {
+                                tracing::info!(?mount, "laser mount from {}", topics.tf_static);
+                            }
+                            core.set_laser_mount(mount)?;
+                            mount_source = "/tf_static";
+                        }
+                        Err(e) => tracing::warn!(
+                            error = %e,
+                            "ignoring {} -> {laser} on {}",
+                            ros.frames.base,
+                            topics.tf_static
+                        ),
+                    }
+                }
+            }
+        }
         if let Some((scan, source)) = take_newest(&scan_sub, &topics.scan) {
             let t = now();
             scans += 1;
+            if scan_frame.as_deref() != Some(scan.header.frame_id.as_str())
+                && !scan.header.frame_id.is_empty()
+            {
+                scan_frame = Some(scan.header.frame_id.clone());
+            }
             if core.on_scan(&scan, t) {
                 sensor_clock.set(Some((scan.header.stamp, t)));
                 if core.lidar_driver() {
@@ -517,6 +620,8 @@ pub fn run_drive(
         latency,
         end_to_end: e2e,
         safety: *core.safety().counters(),
+        laser_mount: core.laser_mount(),
+        laser_mount_source: mount_source,
     };
     tracing::info!(
         commands,

@@ -21,6 +21,8 @@
 //! MCAP files.
 
 pub mod drive;
+pub mod freshness;
+pub mod mount;
 pub mod msg;
 pub mod record;
 pub mod ros;

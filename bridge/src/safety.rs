@@ -3,7 +3,9 @@
 //!
 //! In order of precedence:
 //! 1. **Stale sensors**: no odometry (or, when the scan is needed, no scan) younger than
-//!    `sensor_timeout` -> zero speed, straight wheels.
+//!    `sensor_timeout` -> zero speed, straight wheels. A sensor's age is the larger of
+//!    its arrival age and its header-stamp age ([`crate::freshness`]), so a re-sent or
+//!    buffered old message does not count as fresh.
 //! 2. **Emergency stop**: the smallest time to collision over the scan's returns below
 //!    `ttc_threshold` -> zero speed. It stays engaged until the TTC has been clear for
 //!    `ttc_release` seconds (no chattering at the threshold). With a corridor
@@ -27,6 +29,7 @@
 use paddock_sim::world::Action;
 
 use crate::BridgeError;
+use crate::mount::LaserMount;
 use crate::msg::LaserScan;
 use crate::scan::Beam;
 
@@ -53,6 +56,9 @@ pub struct SafetyConfig {
     pub ahead_half_angle: f64,
     /// Stop when more than this fraction of the beams ahead are invalid (1: never).
     pub max_invalid_ahead: f64,
+    /// How fast a sensor's stamp clock may fall behind ours, s/s: the bound on the
+    /// clock-offset estimate behind the stamp age ([`crate::freshness`]).
+    pub max_clock_drift: f64,
 }
 
 impl Default for SafetyConfig {
@@ -67,13 +73,20 @@ impl Default for SafetyConfig {
             corridor_half_width: 0.2,
             ahead_half_angle: 20f64.to_radians(),
             max_invalid_ahead: 0.25,
+            max_clock_drift: 0.01,
         }
     }
 }
 
 impl SafetyConfig {
     pub fn validate(&self) -> Result<(), BridgeError> {
-        let checks: [(&str, f64, bool, &str); 9] = [
+        let checks: [(&str, f64, bool, &str); 10] = [
+            (
+                "max_clock_drift",
+                self.max_clock_drift,
+                (0.0..=1.0).contains(&self.max_clock_drift),
+                "must be in [0, 1] s/s (1: no stamp age; arrival and newer stamps only)",
+            ),
             (
                 "ahead_half_angle",
                 self.ahead_half_angle,
@@ -204,6 +217,8 @@ pub struct Safety {
     clear_since: Option<f64>,
     /// (invalid, beams) ahead in the newest scan, when over the limit.
     blind: Option<(usize, usize)>,
+    /// Where the scans come from.
+    mount: LaserMount,
     counters: SafetyCounters,
 }
 
@@ -215,6 +230,7 @@ impl Safety {
             engaged: None,
             clear_since: None,
             blind: None,
+            mount: LaserMount::default(),
             counters: SafetyCounters {
                 min_ttc: f64::INFINITY,
                 ..SafetyCounters::default()
@@ -230,6 +246,11 @@ impl Safety {
         &self.counters
     }
 
+    /// Take the laser's mount on the car (for TTC and the blind-ahead cone).
+    pub fn set_mount(&mut self, mount: LaserMount) {
+        self.mount = mount;
+    }
+
     /// Is the emergency stop engaged?
     pub fn emergency_engaged(&self) -> bool {
         self.engaged.is_some()
@@ -241,27 +262,44 @@ impl Safety {
     /// beams (`-inf`) count as obstacles at `range_min`; invalid and no-return beams are
     /// skipped (REP 117).
     pub fn time_to_collision(scan: &LaserScan, speed: f64, corridor: f64) -> f64 {
+        Self::time_to_collision_from(&LaserMount::default(), scan, speed, corridor)
+    }
+
+    /// [`Self::time_to_collision`] for a laser mounted at `mount`: the corridor in
+    /// `base_link`, distances ahead measured from the laser's station along the car
+    /// (`max(mount.x, 0)`: near the car's front on the F1TENTH car; base_link is the
+    /// rear axle, and measuring from it would brake later than before).
+    pub fn time_to_collision_from(
+        mount: &LaserMount,
+        scan: &LaserScan,
+        speed: f64,
+        corridor: f64,
+    ) -> f64 {
         if !(speed.is_finite() && speed > 0.0) {
             return f64::INFINITY;
         }
         let (lo, hi) = (scan.range_min, scan.range_max);
+        let station = mount.x.max(0.0);
         let mut best = f64::INFINITY;
         for (i, &r) in scan.ranges.iter().enumerate() {
             let Some(r) = Beam::classify(r, lo, hi).obstacle_range(lo as f64) else {
                 continue;
             };
             let angle = scan.angle_min as f64 + i as f64 * scan.angle_increment as f64;
-            let (sin, cos) = libm::sincos(angle);
-            if cos <= 0.0 {
+            let (px, py) = mount.point(angle, r);
+            // distance ahead of the laser's station along the car (near its front)
+            let ahead = px - station;
+            if ahead <= 0.0 {
                 continue;
             }
             let ttc = if corridor > 0.0 {
-                if (r * sin).abs() > corridor {
+                if py.abs() > corridor {
                     continue;
                 }
-                r * cos / speed
+                ahead / speed
             } else {
-                r / (speed * cos)
+                // r / (v cos), r and its angle seen from the station
+                (ahead * ahead + py * py) / (speed * ahead)
             };
             best = best.min(ttc);
         }
@@ -270,10 +308,19 @@ impl Safety {
 
     /// (invalid beams, beams) within `half_angle` of straight ahead.
     pub fn invalid_ahead(scan: &LaserScan, half_angle: f64) -> (usize, usize) {
+        Self::invalid_ahead_from(&LaserMount::default(), scan, half_angle)
+    }
+
+    /// [`Self::invalid_ahead`] for a laser mounted at `mount` (ahead of the car).
+    pub fn invalid_ahead_from(
+        mount: &LaserMount,
+        scan: &LaserScan,
+        half_angle: f64,
+    ) -> (usize, usize) {
         let (mut invalid, mut beams) = (0, 0);
         for (i, &r) in scan.ranges.iter().enumerate() {
             let angle = scan.angle_min as f64 + i as f64 * scan.angle_increment as f64;
-            if angle.abs() > half_angle {
+            if paddock_sim::geometry::wrap_angle(mount.beam_angle(angle)).abs() > half_angle {
                 continue;
             }
             beams += 1;
@@ -287,7 +334,8 @@ impl Safety {
     /// Update the emergency stop and the blind-ahead check with a new scan taken while
     /// moving at `speed`.
     pub fn on_scan(&mut self, scan: &LaserScan, speed: f64, now: f64) {
-        let (invalid, beams) = Self::invalid_ahead(scan, self.config.ahead_half_angle);
+        let (invalid, beams) =
+            Self::invalid_ahead_from(&self.mount, scan, self.config.ahead_half_angle);
         let blind = invalid as f64 > self.config.max_invalid_ahead * beams as f64 || beams == 0;
         match (self.blind.is_some(), blind) {
             (false, true) => tracing::warn!(invalid, beams, "blind ahead: too many invalid beams"),
@@ -298,7 +346,8 @@ impl Safety {
         if self.config.ttc_threshold <= 0.0 {
             return;
         }
-        let ttc = Self::time_to_collision(scan, speed, self.config.corridor_half_width);
+        let ttc =
+            Self::time_to_collision_from(&self.mount, scan, speed, self.config.corridor_half_width);
         self.counters.min_ttc = self.counters.min_ttc.min(ttc);
         if ttc < self.config.ttc_threshold {
             if self.engaged.is_none() {

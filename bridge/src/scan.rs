@@ -15,6 +15,7 @@
 
 use paddock_sim::lidar::LidarConfig;
 
+use crate::mount::{LaserMount, reproject};
 use crate::msg::LaserScan;
 
 /// What one beam says (REP 117).
@@ -85,6 +86,14 @@ pub fn conservative_ranges(scan: &LaserScan, max_range: f64, out: &mut Vec<f64>)
         };
     }
     // invalid beams: the nearer of the nearest known beams on each side
+    fill_gaps(out, (lo as f64).min(max_range));
+}
+
+/// Give every NaN in `out` the nearer of the nearest non-NaN values on either side
+/// (`fallback` when there is none): an unknown beam never reads farther than what is
+/// known around it.
+pub fn fill_gaps(out: &mut [f64], fallback: f64) {
+    let n = out.len();
     let mut left = vec![f64::NAN; n];
     let mut last = f64::NAN;
     for (l, &v) in left.iter_mut().zip(out.iter()) {
@@ -99,17 +108,14 @@ pub fn conservative_ranges(scan: &LaserScan, max_range: f64, out: &mut Vec<f64>)
             next = out[i];
             continue;
         }
-        // f64::min ignores a NaN side; with no known beam at all: range_min
+        // f64::min ignores a NaN side
         let v = left[i].min(next);
-        out[i] = if v.is_nan() {
-            (lo as f64).min(max_range)
-        } else {
-            v
-        };
+        out[i] = if v.is_nan() { fallback } else { v };
     }
 }
 
-/// Maps a LaserScan's beams onto the driver's beam layout by nearest angle.
+/// Maps a LaserScan's beams onto the driver's beam layout: by nearest angle when the
+/// laser sits where the driver's does, else by re-projection ([`crate::mount`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScanAdapter {
     /// Geometry of the incoming scans this was built for.
@@ -118,10 +124,22 @@ pub struct ScanAdapter {
     index: Vec<usize>,
     /// The source scan read conservatively (reused buffer).
     source: Vec<f64>,
+    /// Where the scans come from, and the driver's laser, when they differ.
+    reprojection: Option<(LaserMount, LidarConfig)>,
 }
 
 impl ScanAdapter {
+    /// An adapter for scans like `scan` from a laser at the driver's position.
     pub fn new(scan: &LaserScan, target: &LidarConfig) -> Result<Self, String> {
+        Self::mounted(scan, target, &LaserMount::ahead(target.mount_offset))
+    }
+
+    /// An adapter for scans like `scan` from a laser mounted at `mount`.
+    pub fn mounted(
+        scan: &LaserScan,
+        target: &LidarConfig,
+        mount: &LaserMount,
+    ) -> Result<Self, String> {
         let n = scan.ranges.len();
         let (amin, inc) = (scan.angle_min as f64, scan.angle_increment as f64);
         if n == 0 {
@@ -153,6 +171,7 @@ impl ScanAdapter {
             key: Self::key(scan),
             index,
             source: Vec::with_capacity(n),
+            reprojection: (!mount.matches(target)).then(|| (*mount, target.clone())),
         })
     }
 
@@ -172,6 +191,11 @@ impl ScanAdapter {
     /// Write the driver's view of `scan` (REP 117, conservatively) into `out`.
     pub fn apply(&mut self, scan: &LaserScan, max_range: f64, out: &mut [f64]) {
         conservative_ranges(scan, max_range, &mut self.source);
+        if let Some((mount, target)) = &self.reprojection {
+            let (amin, inc) = (scan.angle_min as f64, scan.angle_increment as f64);
+            reproject(&self.source, amin, inc, mount, target, out);
+            return;
+        }
         for (o, &i) in out.iter_mut().zip(&self.index) {
             *o = self.source[i];
         }

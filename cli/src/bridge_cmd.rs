@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
+use paddock_bridge::mount::LaserMount;
 use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
 use paddock_bridge::ros::{Frames, QosConfig, RosConfig, parse_domain_id};
 use paddock_bridge::safety::SafetyConfig;
@@ -167,6 +168,25 @@ struct DriveArgs {
     /// straight ahead are invalid (REP 117: NaN or an error code; 1: never).
     #[arg(long, default_value_t = 0.25)]
     max_invalid_ahead: f64,
+    /// How fast a sensor's header-stamp clock may fall behind this host's, s/s: the
+    /// bound of the clock-offset estimate behind the stamp age (a SIL car slower than
+    /// real time, `--rate R` < 1, needs at least 1 - R; 1 turns the stamp age off).
+    #[arg(long, default_value_t = 0.01)]
+    max_clock_drift: f64,
+    /// The laser's position ahead of base_link, m. Any --laser-* flag sets the mount;
+    /// without them it comes from /tf_static (base frame -> laser frame), and until
+    /// that arrives the laser is taken to sit where the simulator's does (base_link).
+    #[arg(long, allow_hyphen_values = true)]
+    laser_x: Option<f64>,
+    /// The laser's position to the left of base_link, m.
+    #[arg(long, allow_hyphen_values = true)]
+    laser_y: Option<f64>,
+    /// The laser's yaw on the car, rad (pi: looking backwards).
+    #[arg(long, allow_hyphen_values = true)]
+    laser_yaw: Option<f64>,
+    /// The laser is mounted upside down (its beams sweep clockwise).
+    #[arg(long)]
+    laser_flipped: bool,
     /// Least command rate, Hz (commands also follow every new sensor message).
     #[arg(long, default_value_t = 40.0)]
     rate_hz: f64,
@@ -210,6 +230,11 @@ struct SilArgs {
     /// LIDAR noise standard deviation, m.
     #[arg(long, default_value_t = 0.01)]
     lidar_noise: f64,
+    /// The simulated laser's position ahead of the car's reference point (base_link),
+    /// m: 0 as f1tenth_gym_ros (`scan_distance_to_base_link`); 0.27 is where
+    /// f1tenth_system mounts the Hokuyo. Published on /tf_static.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    laser_x: f64,
     /// What a collision does: stop (put back and halted), terminate, ignore.
     #[arg(long, default_value = "stop")]
     collision: String,
@@ -344,8 +369,19 @@ fn drive(a: &DriveArgs) -> Result<()> {
             ttc_release: a.ttc_release,
             corridor_half_width: a.ttc_corridor,
             max_invalid_ahead: a.max_invalid_ahead,
+            max_clock_drift: a.max_clock_drift,
             ..SafetyConfig::default()
         },
+        laser_mount: (a.laser_x.is_some()
+            || a.laser_y.is_some()
+            || a.laser_yaw.is_some()
+            || a.laser_flipped)
+            .then(|| LaserMount {
+                x: a.laser_x.unwrap_or(0.0),
+                y: a.laser_y.unwrap_or(0.0),
+                yaw: a.laser_yaw.unwrap_or(0.0),
+                flipped: a.laser_flipped,
+            }),
         ..DriveOptions::default()
     };
     let core = DriveCore::new(driver, options.lidar.clone(), options.safety)?;
@@ -374,6 +410,15 @@ fn drive(a: &DriveArgs) -> Result<()> {
             s.trigger, e.count, e.mean_ms, e.p50_ms, e.p99_ms, e.max_ms
         );
     }
+    let m = &s.laser_mount;
+    println!(
+        "laser mount ({}): x {:.3} m, y {:.3} m, yaw {:.3} rad{}",
+        s.laser_mount_source,
+        m.x,
+        m.y,
+        m.yaw,
+        if m.flipped { ", flipped" } else { "" }
+    );
     println!(
         "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} blind-ahead stops, {} clamped, {} invalid",
         c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.blind, c.clamped, c.invalid
@@ -400,6 +445,10 @@ fn sil(a: &SilArgs) -> Result<()> {
         anyhow::bail!("--lidar-noise = {}: must be a number >= 0", a.lidar_noise);
     }
     lidar.noise_std = a.lidar_noise;
+    if !(a.laser_x.is_finite() && a.laser_x.abs() <= 1.0) {
+        anyhow::bail!("--laser-x = {}: must be within +-1 m", a.laser_x);
+    }
+    lidar.mount_offset = a.laser_x;
     let options = SilOptions {
         map: a.map.clone(),
         rate: a.rate,
