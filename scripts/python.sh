@@ -2,7 +2,9 @@
 # The Python client (client-py): a venv with pinned dependencies, the package installed
 # in editable mode, and its tests against a real `paddock serve` that the fixtures start
 # on a free loopback port and stop. Then the ROS 2 interop tests (bridge/interop): the
-# same binary's `paddock bridge` nodes against Eclipse Cyclone DDS, loopback only.
+# same binary's `paddock bridge` nodes against Eclipse Cyclone DDS, loopback only, and its
+# recordings against third-party bag software (rosbags writes rosbag2 bags, the mcap
+# library reads MCAP files).
 #
 #   scripts/python.sh              # build paddock (release), set up the venv, run pytest
 #   scripts/python.sh -k env -x    # extra arguments go to the client-py pytest run
@@ -19,7 +21,7 @@ fi
 VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
 PY="${PYTHON:-python3}"
 PINS=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0
-      cyclonedds==11.0.1)
+      cyclonedds==11.0.1 rosbags==0.11.9 mcap==1.6.0)
 
 if [ ! -x "$VENV/bin/python" ]; then
     echo "python.sh: creating the venv $VENV"

@@ -12,14 +12,18 @@
 //! - The steering angle a driver may read is the last steering command sent (the car does
 //!   not measure it).
 //! - Scans are resampled to the beam layout the driver was built for (the simulator's
-//!   [`LidarConfig`]: 1080 beams over 4.7 rad by default) by nearest angle; invalid
-//!   returns (NaN, outside `[range_min, range_max]`) read as the driver's max range.
+//!   [`LidarConfig`]: 1080 beams over 4.7 rad by default) by nearest angle, read with
+//!   REP 117's semantics ([`crate::scan`]): no return (`+inf`) as max range, too close
+//!   (`-inf`) as `range_min`, an invalid beam (NaN, an error code) as the nearer of its
+//!   nearest known neighbours, never as open road.
 //! - A LIDAR driver acts on every new scan, a pose driver on every new odometry message,
 //!   so the loop follows the sensors' clock (and a faster-than-real-time SIL car). A
 //!   command is also sent at least every `1 / rate_hz` seconds, so the stale-sensor stop
 //!   reaches the car even when the sensors fall silent.
 //! - Latency is the time from the triggering message's arrival to the command's publish.
 
+use std::cell::Cell;
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -32,9 +36,14 @@ use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 
 use crate::BridgeError;
-use crate::msg::{AckermannDrive, AckermannDriveStamped, Header, LaserScan, Odometry, Time};
-use crate::ros::{RosConfig, RosNode, publish, take_newest};
+use crate::freshness::{Freshness, SensorClock};
+use crate::mount::LaserMount;
+use crate::msg::{
+    AckermannDrive, AckermannDriveStamped, Header, LaserScan, Odometry, TFMessage, Time,
+};
+use crate::ros::{RosConfig, RosNode, publish, take_all, take_newest};
 use crate::safety::{Safety, SafetyConfig, SafetyCounters, StopReason, Verdict};
+use crate::scan::{ScanAdapter, check_limits};
 
 /// Which driver with which parameters: a `paddock tune` result or a registry name.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,71 +129,6 @@ impl DriverSpec {
     }
 }
 
-/// Maps a LaserScan's beams onto the driver's beam layout by nearest angle.
-#[derive(Debug, Clone, PartialEq)]
-struct ScanAdapter {
-    /// Geometry of the incoming scans this was built for.
-    key: (usize, u32, u32),
-    /// Source beam of each target beam.
-    index: Vec<usize>,
-}
-
-impl ScanAdapter {
-    fn new(scan: &LaserScan, target: &LidarConfig) -> Result<Self, String> {
-        let n = scan.ranges.len();
-        let (amin, inc) = (scan.angle_min as f64, scan.angle_increment as f64);
-        if n == 0 {
-            return Err("scan has no ranges".into());
-        }
-        if !(amin.is_finite() && inc.is_finite()) || (n > 1 && inc == 0.0) {
-            return Err(format!(
-                "scan geometry angle_min = {amin}, angle_increment = {inc} is unusable"
-            ));
-        }
-        let m = target.num_beams;
-        let step = if m > 1 {
-            target.fov / (m - 1) as f64
-        } else {
-            0.0
-        };
-        let index = (0..m)
-            .map(|j| {
-                let a = -0.5 * target.fov + j as f64 * step;
-                let i = if n > 1 {
-                    ((a - amin) / inc).round()
-                } else {
-                    0.0
-                };
-                i.clamp(0.0, (n - 1) as f64) as usize
-            })
-            .collect();
-        Ok(Self {
-            key: Self::key(scan),
-            index,
-        })
-    }
-
-    fn key(scan: &LaserScan) -> (usize, u32, u32) {
-        (
-            scan.ranges.len(),
-            scan.angle_min.to_bits(),
-            scan.angle_increment.to_bits(),
-        )
-    }
-
-    fn apply(&self, scan: &LaserScan, max_range: f64, out: &mut [f64]) {
-        let (lo, hi) = (scan.range_min as f64, scan.range_max as f64);
-        for (o, &i) in out.iter_mut().zip(&self.index) {
-            let r = scan.ranges[i] as f64;
-            *o = if r.is_finite() && r >= lo && r <= hi {
-                r.min(max_range)
-            } else {
-                max_range
-            };
-        }
-    }
-}
-
 /// The driver, its view of the car, and the safety layer; no I/O.
 pub struct DriveCore {
     driver: Box<dyn Driver>,
@@ -192,9 +136,11 @@ pub struct DriveCore {
     lidar: LidarConfig,
     safety: Safety,
     adapter: Option<ScanAdapter>,
+    /// Where the car's laser sits (default: where the driver's does).
+    mount: LaserMount,
     obs: Observation,
-    scan_at: Option<f64>,
-    odom_at: Option<f64>,
+    scan_clock: SensorClock,
+    odom_clock: SensorClock,
     speed: f64,
     last: Option<StopReason>,
 }
@@ -231,15 +177,20 @@ impl DriveCore {
             progress: vec![0.0],
             slip_angles: vec![0.0],
         };
+        let drift = safety.max_clock_drift;
+        let mount = LaserMount::ahead(lidar.mount_offset);
+        let mut safety = Safety::new(safety)?;
+        safety.set_mount(mount);
         Ok(Self {
             driver,
             lidar_driver,
             lidar,
-            safety: Safety::new(safety)?,
+            safety,
             adapter: None,
+            mount,
             obs,
-            scan_at: None,
-            odom_at: None,
+            scan_clock: SensorClock::new(drift),
+            odom_clock: SensorClock::new(drift),
             speed: 0.0,
             last: None,
         })
@@ -258,15 +209,37 @@ impl DriveCore {
         &self.safety
     }
 
-    /// Take a scan that arrived at `now`. A scan with unusable geometry is dropped (and
-    /// logged); the previous one then ages towards the stale-sensor stop.
+    /// Where the car's laser sits: scans are re-projected to the driver's laser, and the
+    /// safety layer measures from `base_link`.
+    pub fn set_laser_mount(&mut self, mount: LaserMount) -> Result<(), BridgeError> {
+        mount
+            .validate()
+            .map_err(|e| BridgeError::config("laser mount", format!("{mount:?}"), &e))?;
+        if mount != self.mount {
+            self.mount = mount;
+            self.adapter = None;
+            self.safety.set_mount(mount);
+        }
+        Ok(())
+    }
+
+    pub fn laser_mount(&self) -> LaserMount {
+        self.mount
+    }
+
+    /// Take a scan that arrived at `now`. A scan with unusable geometry, or one whose
+    /// stamp is not newer than the last (a re-send), is dropped (and logged); the
+    /// previous one then ages towards the stale-sensor stop.
     pub fn on_scan(&mut self, scan: &LaserScan, now: f64) -> bool {
-        if self
-            .adapter
-            .as_ref()
-            .is_none_or(|a| a.key != ScanAdapter::key(scan))
-        {
-            match ScanAdapter::new(scan, &self.lidar) {
+        if let Err(e) = check_limits(scan) {
+            tracing::warn!(error = %e, "dropping scan");
+            return false;
+        }
+        if !fresh(&mut self.scan_clock, scan.header.stamp, now, "scan") {
+            return false;
+        }
+        if self.adapter.as_ref().is_none_or(|a| !a.fits(scan)) {
+            match ScanAdapter::mounted(scan, &self.lidar, &self.mount) {
                 Ok(a) => self.adapter = Some(a),
                 Err(e) => {
                     tracing::warn!(error = %e, "dropping scan");
@@ -274,15 +247,15 @@ impl DriveCore {
                 }
             }
         }
-        if let Some(a) = &self.adapter {
+        if let Some(a) = &mut self.adapter {
             a.apply(scan, self.lidar.max_range, &mut self.obs.scans);
         }
         self.safety.on_scan(scan, self.speed, now);
-        self.scan_at = Some(now);
         true
     }
 
-    /// Take odometry that arrived at `now`; a message with non-finite numbers is dropped.
+    /// Take odometry that arrived at `now`; a message with non-finite numbers, or not
+    /// newer than the last, is dropped.
     pub fn on_odom(&mut self, odom: &Odometry, now: f64) -> bool {
         let p = &odom.pose.pose;
         let t = &odom.twist.twist;
@@ -299,6 +272,9 @@ impl DriveCore {
             tracing::warn!(?values, "dropping odometry with non-finite values");
             return false;
         }
+        if !fresh(&mut self.odom_clock, odom.header.stamp, now, "odometry") {
+            return false;
+        }
         let o = &mut self.obs;
         o.poses_x[0] = p.position.x;
         o.poses_y[0] = p.position.y;
@@ -312,23 +288,34 @@ impl DriveCore {
             0.0
         };
         self.speed = t.linear.x;
-        self.odom_at = Some(now);
         true
     }
 
-    /// The command to send at `now`.
-    pub fn command(&mut self, now: f64) -> Verdict {
-        let age = |t: Option<f64>| t.map(|t| (now - t).max(0.0));
-        let ready = self.odom_at.is_some() && (!self.lidar_driver || self.scan_at.is_some());
+    /// The command to send at `now`; an error when the driver panics (the caller then
+    /// stops the car and ends: a driver that panicked once is not trusted again).
+    pub fn command(&mut self, now: f64) -> Result<Verdict, BridgeError> {
+        let (scan_age, odom_age) = (self.scan_clock.age(now), self.odom_clock.age(now));
+        let ready = odom_age.is_some() && (!self.lidar_driver || scan_age.is_some());
         let requested = if ready {
-            self.driver.act(&self.obs, 0)
+            let (driver, obs) = (&mut self.driver, &self.obs);
+            catch_unwind(AssertUnwindSafe(|| driver.act(obs, 0))).map_err(|panic| {
+                let message = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "panicked".to_string());
+                BridgeError::Driver {
+                    driver: self.driver.name().to_string(),
+                    message: format!("panicked: {message}"),
+                }
+            })?
         } else {
             Action::default()
         };
         let needs_scan = self.lidar_driver || self.safety.needs_scan();
-        let verdict =
-            self.safety
-                .filter(requested, age(self.scan_at), age(self.odom_at), needs_scan);
+        let verdict = self
+            .safety
+            .filter(requested, scan_age, odom_age, needs_scan);
         self.obs.steering_angles[0] = verdict.action.steer;
         match (&self.last, &verdict.stop) {
             (None, Some(r)) => tracing::warn!(reason = %r, "stopping the car"),
@@ -336,7 +323,27 @@ impl DriveCore {
             _ => {}
         }
         self.last = verdict.stop;
-        verdict
+        Ok(verdict)
+    }
+}
+
+/// Let `clock` judge a message stamped `stamp` arriving at `now`; log a refusal.
+fn fresh(clock: &mut SensorClock, stamp: Time, now: f64, what: &str) -> bool {
+    let secs = if stamp.is_zero() {
+        0.0
+    } else {
+        stamp.as_secs()
+    };
+    match clock.on_message(secs, now) {
+        Freshness::Accepted => true,
+        Freshness::NotNewer { behind } => {
+            tracing::warn!(
+                sensor = what,
+                behind_s = behind,
+                "dropping a message not newer than the last (re-sent?)"
+            );
+            false
+        }
     }
 }
 
@@ -349,6 +356,9 @@ pub struct DriveOptions {
     pub seconds: Option<f64>,
     pub lidar: LidarConfig,
     pub safety: SafetyConfig,
+    /// The laser's mount on the car; None: from `/tf_static` (`frames.base` -> the
+    /// laser frame) once a transform arrives, the driver's laser position until then.
+    pub laser_mount: Option<LaserMount>,
 }
 
 impl Default for DriveOptions {
@@ -358,6 +368,7 @@ impl Default for DriveOptions {
             seconds: None,
             lidar: LidarConfig::default(),
             safety: SafetyConfig::default(),
+            laser_mount: None,
         }
     }
 }
@@ -406,6 +417,10 @@ pub struct DriveSummary {
     /// meaningful when sensor driver and bridge share a host clock) to the publish.
     pub end_to_end: LatencySummary,
     pub safety: SafetyCounters,
+    /// The laser mount in use at the end, and where it came from ("flags",
+    /// "/tf_static", or "default": the driver's laser position).
+    pub laser_mount: LaserMount,
+    pub laser_mount_source: &'static str,
 }
 
 fn epoch_ns() -> i64 {
@@ -419,8 +434,34 @@ fn wall_clock_stamp() -> Time {
     Time::from_secs(epoch_ns() as f64 * 1e-9)
 }
 
-/// Run `core` as a ROS 2 node until `stop` is set (Ctrl-C) or `options.seconds` pass,
-/// then send zero speed.
+/// Sends zero speed (five times, 10 ms apart, so that a lossy link still delivers it)
+/// when dropped: on the normal end of the loop, on an error return and while unwinding
+/// from a panic, so no way out of [`run_drive`] leaves the last command in place.
+struct ZeroSpeedOnExit<F: Fn(&Verdict) -> bool> {
+    send: F,
+}
+
+impl<F: Fn(&Verdict) -> bool> Drop for ZeroSpeedOnExit<F> {
+    fn drop(&mut self) {
+        let halt = Verdict {
+            action: Action::new(0.0, 0.0),
+            stop: None,
+            clamped: false,
+        };
+        for _ in 0..5 {
+            (self.send)(&halt);
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        // a reliable writer repeats unacknowledged samples: give it a moment before the
+        // participant goes away
+        std::thread::sleep(Duration::from_millis(50));
+        tracing::info!("zero speed sent");
+    }
+}
+
+/// Run `core` as a ROS 2 node until `stop` is set (a signal) or `options.seconds` pass.
+/// Every way out sends zero speed first: the normal end, an error (the driver panicked:
+/// [`BridgeError::Driver`]) and a panic in the loop itself.
 pub fn run_drive(
     mut core: DriveCore,
     ros: &RosConfig,
@@ -440,6 +481,16 @@ pub fn run_drive(
     let odom_sub = node.subscription::<Odometry>(&topics.odom)?;
     let drive_pub = node.publisher::<AckermannDriveStamped>(&topics.drive)?;
     let frame = ros.frames.base.clone();
+    let mut mount_source = "default";
+    let tf_static_sub = match options.laser_mount {
+        Some(mount) => {
+            core.set_laser_mount(mount)?;
+            mount_source = "flags";
+            None
+        }
+        None => Some(node.static_subscription::<TFMessage>(&topics.tf_static)?),
+    };
+    let mut scan_frame: Option<String> = None;
     tracing::info!(
         driver = core.driver_name(),
         scan = %topics.scan, odom = %topics.odom, drive = %topics.drive,
@@ -453,18 +504,18 @@ pub fn run_drive(
     let mut end_to_end = Vec::new();
     // the newest sensor stamp and when it arrived: commands are stamped on the
     // sensors' clock (sim time on the SIL car) plus the time spent since
-    let mut sensor_clock: Option<(Time, f64)> = None;
+    let sensor_clock: Cell<Option<(Time, f64)>> = Cell::new(None);
     let (mut commands, mut scans, mut odoms) = (0u64, 0u64, 0u64);
-    let stamp_at = |clock: &Option<(Time, f64)>, t: f64| match clock {
+    let stamp_at = |t: f64| match sensor_clock.get() {
         Some((stamp, at)) if !stamp.is_zero() => Time::from_secs(stamp.as_secs() + (t - at)),
         _ => wall_clock_stamp(),
     };
-    let send = |v: &Verdict, stamp: Time| {
+    let send = |v: &Verdict| {
         publish(
             &drive_pub,
             &topics.drive,
             AckermannDriveStamped {
-                header: Header::new(stamp, &frame),
+                header: Header::new(stamp_at(now()), &frame),
                 drive: AckermannDrive {
                     steering_angle: v.action.steer as f32,
                     speed: v.action.speed as f32,
@@ -473,6 +524,7 @@ pub fn run_drive(
             },
         )
     };
+    let stop_guard = ZeroSpeedOnExit { send: &send };
     loop {
         if stop.load(Ordering::Relaxed) || options.seconds.is_some_and(|s| now() >= s) {
             break;
@@ -483,17 +535,47 @@ pub fn run_drive(
             let t = now();
             odoms += 1;
             if core.on_odom(&odom, t) {
-                sensor_clock = Some((odom.header.stamp, t));
+                sensor_clock.set(Some((odom.header.stamp, t)));
                 if !core.lidar_driver() {
                     trigger = Some((t, source));
+                }
+            }
+        }
+        if let Some(sub) = &tf_static_sub {
+            for tf in take_all(sub, &topics.tf_static) {
+                let laser = scan_frame.as_deref().unwrap_or(&ros.frames.laser);
+                for t in &tf.transforms {
+                    if t.header.frame_id != ros.frames.base || t.child_frame_id != laser {
+                        continue;
+                    }
+                    match LaserMount::from_transform(&t.transform) {
+                        Ok(mount) => {
+                            if mount != core.laser_mount() || mount_source != "/tf_static" {
+                                tracing::info!(?mount, "laser mount from {}", topics.tf_static);
+                            }
+                            core.set_laser_mount(mount)?;
+                            mount_source = "/tf_static";
+                        }
+                        Err(e) => tracing::warn!(
+                            error = %e,
+                            "ignoring {} -> {laser} on {}",
+                            ros.frames.base,
+                            topics.tf_static
+                        ),
+                    }
                 }
             }
         }
         if let Some((scan, source)) = take_newest(&scan_sub, &topics.scan) {
             let t = now();
             scans += 1;
+            if scan_frame.as_deref() != Some(scan.header.frame_id.as_str())
+                && !scan.header.frame_id.is_empty()
+            {
+                scan_frame = Some(scan.header.frame_id.clone());
+            }
             if core.on_scan(&scan, t) {
-                sensor_clock = Some((scan.header.stamp, t));
+                sensor_clock.set(Some((scan.header.stamp, t)));
                 if core.lidar_driver() {
                     trigger = Some((t, source));
                 }
@@ -501,8 +583,10 @@ pub fn run_drive(
         }
         let t = now();
         if trigger.is_some() || t >= next_tick {
-            let verdict = core.command(t);
-            send(&verdict, stamp_at(&sensor_clock, t));
+            let verdict = core.command(t).inspect_err(|e| {
+                tracing::error!(error = %e, "stopping the car: the driver failed");
+            })?;
+            send(&verdict);
             commands += 1;
             if let Some((arrived, source)) = trigger {
                 let l = now() - arrived;
@@ -522,16 +606,8 @@ pub fn run_drive(
         }
         std::thread::sleep(Duration::from_micros(250));
     }
-    // Clean stop: zero speed, repeated so that a lossy link still delivers it.
-    let halt = Verdict {
-        action: Action::new(0.0, 0.0),
-        stop: None,
-        clamped: false,
-    };
-    for _ in 0..5 {
-        send(&halt, stamp_at(&sensor_clock, now()));
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    // the clean stop
+    drop(stop_guard);
     let latency = LatencySummary::from_samples(&latencies);
     let e2e = LatencySummary::from_samples(&end_to_end);
     let summary = DriveSummary {
@@ -544,6 +620,8 @@ pub fn run_drive(
         latency,
         end_to_end: e2e,
         safety: *core.safety().counters(),
+        laser_mount: core.laser_mount(),
+        laser_mount_source: mount_source,
     };
     tracing::info!(
         commands,
@@ -605,53 +683,21 @@ mod tests {
     }
 
     #[test]
-    fn adapter_resamples_a_1081_beam_scan_by_angle() {
-        let mut s = scan(1081, 4.712_389, 5.0);
-        s.ranges[540] = 1.5; // straight ahead
-        s.ranges[0] = f32::NAN;
-        s.ranges[1] = f32::INFINITY;
-        let target = LidarConfig::default();
-        let a = ScanAdapter::new(&s, &target).unwrap();
-        let mut out = vec![0.0; target.num_beams];
-        a.apply(&s, target.max_range, &mut out);
-        // target beams 539/540 straddle 0 rad; one of them reads the 1.5 m return
-        assert!(
-            out[539] == 1.5 || out[540] == 1.5,
-            "{} {}",
-            out[539],
-            out[540]
-        );
-        assert_eq!(out[0], target.max_range);
-        assert!(
-            out[1..530]
-                .iter()
-                .all(|&r| r == 5.0 || r == target.max_range)
-        );
-        let mut one = scan(2, 1.0, 1.0);
-        one.ranges.pop();
-        one.angle_increment = 0.0;
-        assert!(ScanAdapter::new(&one, &target).is_ok());
-        let mut bad = scan(10, 1.0, 1.0);
-        bad.angle_increment = f32::NAN;
-        assert!(ScanAdapter::new(&bad, &target).is_err());
-    }
-
-    #[test]
     fn core_waits_for_sensors_then_drives_then_stops_when_stale() {
         let mut c = gap_core(SafetyConfig {
             max_speed: 3.0,
             ..SafetyConfig::default()
         });
         assert!(c.lidar_driver());
-        let v = c.command(0.0);
+        let v = c.command(0.0).unwrap();
         assert!(matches!(v.stop, Some(StopReason::StaleOdom { age: None })));
         assert!(c.on_odom(&odom(0.0, 0.0, 1.0), 0.0));
         assert!(c.on_scan(&scan(1080, 4.7, 8.0), 0.01));
-        let v = c.command(0.02);
+        let v = c.command(0.02).unwrap();
         assert_eq!(v.stop, None);
         assert!(v.action.speed > 0.0 && v.action.speed <= 3.0, "{v:?}");
         // nothing new for 0.3 s: stale, zero speed
-        let v = c.command(0.32);
+        let v = c.command(0.32).unwrap();
         assert!(
             matches!(v.stop, Some(StopReason::StaleOdom { .. })),
             "{v:?}"
@@ -669,7 +715,7 @@ mod tests {
             *r = 0.6; // 0.15 s at 4 m/s
         }
         c.on_scan(&s, 0.0);
-        let v = c.command(0.01);
+        let v = c.command(0.01).unwrap();
         assert!(
             matches!(v.stop, Some(StopReason::Emergency { .. })),
             "{v:?}"

@@ -21,10 +21,13 @@
 //! MCAP files.
 
 pub mod drive;
+pub mod freshness;
+pub mod mount;
 pub mod msg;
 pub mod record;
 pub mod ros;
 pub mod safety;
+pub mod scan;
 pub mod sil;
 
 use std::fmt::Display;
@@ -45,6 +48,10 @@ pub enum BridgeError {
     Io { path: String, error: std::io::Error },
     #[error("{path}: {message}")]
     Format { path: String, message: String },
+    /// The driver failed while the car was driving (a panic inside `act`); zero speed
+    /// was sent before this error was returned.
+    #[error("driver {driver} failed: {message}")]
+    Driver { driver: String, message: String },
     #[error(transparent)]
     Policy(#[from] paddock_policy::PolicyError),
     #[error(transparent)]

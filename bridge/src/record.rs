@@ -5,11 +5,19 @@
 //! `ros2msg` schema per type with its nested definitions, so Foxglove, `ros2 bag` (with
 //! the MCAP storage plugin) and `paddock sysid --recording run.mcap` read it directly.
 //!
+//! Each channel carries the `offered_qos_profiles` metadata that the ROS 2 MCAP profile
+//! requires (rosbag2's YAML, Humble's numeric layout, which later distros read too):
+//! reliable, volatile, keep last, the profile `ros2 bag play` then offers, which matches
+//! reliable and best-effort subscribers alike. Chunks are 256 KiB, so a recording cut
+//! off by a power failure loses at most its last quarter megabyte (under a second of
+//! the car's topics): [`read_gap_rows`] reads such a file up to its last complete chunk.
+//!
 //! A message's log time is its header stamp ([`LogClock::Header`], the default: the
 //! sensor's own clock, and the simulated timeline on a faster-than-real-time SIL car) or
 //! its arrival time ([`LogClock::Receive`]); a zero stamp falls back to arrival time.
 //!
-//! [`export_csv`] writes `t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate`: one row per
+//! [`export_csv`] reads any recording [`paddock_recordings::read_bag`] reads (this MCAP,
+//! a rosbag2 bag folder in SQLite3 or MCAP storage, a bare `.db3`) and writes `t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate`: one row per
 //! odometry message from the first drive command on, `t` from 0 s, the newest command at
 //! or before the row held, yaw wrapped to [-pi, pi).
 
@@ -20,6 +28,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use paddock_recordings::{Truncation, read_bag};
 use paddock_sim::geometry::wrap_angle as wrap_pi;
 use ros2_client::Subscription;
 
@@ -69,6 +78,20 @@ impl Stamped for AckermannDriveStamped {
     }
 }
 
+/// Chunk size of the recordings: what a power cut can lose at most.
+const CHUNK_BYTES: u64 = 256 * 1024;
+
+/// rosbag2's `offered_qos_profiles` for a channel: one profile, reliable (1), volatile
+/// (2), keep last (1) `depth`, default deadline, lifespan and liveliness.
+pub fn offered_qos_profiles(depth: usize) -> String {
+    let zero = "\n    sec: 0\n    nsec: 0";
+    format!(
+        "- history: 1\n  depth: {depth}\n  reliability: 1\n  durability: 2\n  \
+         deadline:{zero}\n  lifespan:{zero}\n  liveliness: 1\n  \
+         liveliness_lease_duration:{zero}\n  avoid_ros_namespace_conventions: false"
+    )
+}
+
 /// An MCAP ROS 2 bag being written.
 pub struct McapBag<W: Write + std::io::Seek> {
     writer: mcap::Writer<W>,
@@ -90,6 +113,7 @@ impl<W: Write + std::io::Seek> McapBag<W> {
     pub fn new(w: W, path: &str) -> Result<Self, BridgeError> {
         let writer = mcap::WriteOptions::new()
             .compression(None)
+            .chunk_size(Some(CHUNK_BYTES))
             .profile("ros2")
             .library(concat!("paddock-bridge ", env!("CARGO_PKG_VERSION")))
             .create(w)
@@ -119,7 +143,12 @@ impl<W: Write + std::io::Seek> McapBag<W> {
         };
         let id = self
             .writer
-            .add_channel(schema, topic, "cdr", &BTreeMap::new())
+            .add_channel(
+                schema,
+                topic,
+                "cdr",
+                &BTreeMap::from([("offered_qos_profiles".to_string(), offered_qos_profiles(5))]),
+            )
             .map_err(mcap_err(&self.path))?;
         self.channels.insert(topic.to_string(), id);
         Ok(())
@@ -298,44 +327,58 @@ pub struct GapRow {
 /// The CSV header of the reality-gap layout.
 pub const GAP_CSV_HEADER: &str = "t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate";
 
-/// Read the drive and odometry topics of an MCAP file into reality-gap rows.
+/// Read the drive and odometry topics of a recording (see [`export_csv`]) into
+/// reality-gap rows. A truncated MCAP is read up to its last complete chunk, with a
+/// warning; [`read_gap_rows_reporting`] hands that report back.
 pub fn read_gap_rows(path: &Path, topics: &TopicNames) -> Result<Vec<GapRow>, BridgeError> {
-    let bytes = std::fs::read(path).map_err(|e| BridgeError::io(path, e))?;
+    read_gap_rows_reporting(path, topics).map(|(rows, _)| rows)
+}
+
+/// [`read_gap_rows`], with what was recovered when the file was never finalised.
+pub fn read_gap_rows_reporting(
+    path: &Path,
+    topics: &TopicNames,
+) -> Result<(Vec<GapRow>, Option<Truncation>), BridgeError> {
     let bad = |message: String| BridgeError::format(path, message);
-    let stream =
-        mcap::MessageStream::new(&bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))?;
-    let mut drive: Vec<(u64, f64, f64)> = Vec::new();
-    let mut odom: Vec<(u64, Odometry)> = Vec::new();
-    let mut seen: BTreeMap<String, u64> = BTreeMap::new();
-    for m in stream {
-        let m = m.map_err(|e| bad(format!("reading MCAP: {e}")))?;
-        let topic = &m.channel.topic;
-        *seen.entry(topic.clone()).or_default() += 1;
-        let encoding = &m.channel.message_encoding;
-        if (*topic == topics.drive || *topic == topics.odom) && encoding != "cdr" {
+    let bag = read_bag(path, &[topics.drive.as_str(), topics.odom.as_str()]).map_err(|e| {
+        BridgeError::Format {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        }
+    })?;
+    for topic in [&topics.drive, &topics.odom] {
+        if let Some(info) = bag.topics.get(topic.as_str())
+            && info.encoding != "cdr"
+        {
             return Err(bad(format!(
-                "topic {topic} has message encoding {encoding:?}; only cdr (ROS 2) is read"
+                "topic {topic} has message encoding {:?}; only cdr (ROS 2) is read",
+                info.encoding
             )));
         }
-        if *topic == topics.drive {
+    }
+    let mut drive: Vec<(u64, f64, f64)> = Vec::new();
+    let mut odom: Vec<(u64, Odometry)> = Vec::new();
+    for m in &bag.messages {
+        if m.topic == topics.drive {
             let d: AckermannDriveStamped = from_cdr(&m.data)
-                .map_err(|e| bad(format!("{topic} message {}: {e}", drive.len())))?;
+                .map_err(|e| bad(format!("{} message {}: {e}", m.topic, drive.len())))?;
             drive.push((
                 m.log_time,
                 d.drive.steering_angle as f64,
                 d.drive.speed as f64,
             ));
-        } else if *topic == topics.odom {
+        } else if m.topic == topics.odom {
             let o: Odometry = from_cdr(&m.data)
-                .map_err(|e| bad(format!("{topic} message {}: {e}", odom.len())))?;
+                .map_err(|e| bad(format!("{} message {}: {e}", m.topic, odom.len())))?;
             odom.push((m.log_time, o));
         }
     }
-    let known = seen.keys().cloned().collect::<Vec<_>>().join(", ");
     if drive.is_empty() || odom.is_empty() {
         return Err(bad(format!(
-            "needs messages on {} and {} (topics in the file: {known})",
-            topics.drive, topics.odom
+            "needs messages on {} and {} (topics in the recording: {})",
+            topics.drive,
+            topics.odom,
+            bag.topic_list()
         )));
     }
     drive.sort_by_key(|d| d.0);
@@ -372,12 +415,18 @@ pub fn read_gap_rows(path: &Path, topics: &TopicNames) -> Result<Vec<GapRow>, Br
             topics.odom, topics.drive
         )));
     }
-    Ok(rows)
+    Ok((rows, bag.truncation))
 }
 
-/// Export an MCAP recording to the reality-gap CSV `out`; returns the rows written.
-pub fn export_csv(mcap: &Path, out: &Path, topics: &TopicNames) -> Result<usize, BridgeError> {
-    let rows = read_gap_rows(mcap, topics)?;
+/// Export a recording (a `paddock bridge record` MCAP, a rosbag2 bag folder in SQLite3
+/// or MCAP storage, or a bare `.db3`) to the reality-gap CSV `out`; returns the rows
+/// written and, for an MCAP file that was never finalised, what was recovered.
+pub fn export_csv(
+    recording: &Path,
+    out: &Path,
+    topics: &TopicNames,
+) -> Result<(usize, Option<Truncation>), BridgeError> {
+    let (rows, truncation) = read_gap_rows_reporting(recording, topics)?;
     let io = |e| BridgeError::io(out, e);
     let mut w = BufWriter::new(File::create(out).map_err(io)?);
     writeln!(w, "{GAP_CSV_HEADER}").map_err(io)?;
@@ -390,7 +439,7 @@ pub fn export_csv(mcap: &Path, out: &Path, topics: &TopicNames) -> Result<usize,
         .map_err(io)?;
     }
     w.flush().map_err(io)?;
-    Ok(rows.len())
+    Ok((rows.len(), truncation))
 }
 
 #[cfg(test)]
@@ -452,7 +501,7 @@ mod tests {
             assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.yaw));
         }
         let csv = dir.join("run.csv");
-        assert_eq!(export_csv(&path, &csv, &topics).unwrap(), 4);
+        assert_eq!(export_csv(&path, &csv, &topics).unwrap(), (4, None));
         let text = std::fs::read_to_string(&csv).unwrap();
         assert!(text.starts_with(&format!("{GAP_CSV_HEADER}\n0,")));
         // errors name the file and what is missing

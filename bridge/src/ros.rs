@@ -372,6 +372,21 @@ pub fn take_latest<M: RosMessage>(sub: &Subscription<M>, topic: &str) -> Option<
     take_newest(sub, topic).map(|(m, _)| m)
 }
 
+/// Take every waiting message, oldest first; read errors are logged and skipped.
+pub fn take_all<M: RosMessage>(sub: &Subscription<M>, topic: &str) -> Vec<M> {
+    let mut all = Vec::new();
+    loop {
+        match sub.take() {
+            Ok(Some((m, _))) => all.push(m),
+            Ok(None) => return all,
+            Err(e) => {
+                tracing::warn!(topic, error = ?e, "dropping an unreadable message");
+                return all;
+            }
+        }
+    }
+}
+
 /// [`take_latest`] with the newest message's DDS source timestamp (the publisher's wall
 /// clock when it wrote the sample), nanoseconds since the epoch.
 pub fn take_newest<M: RosMessage>(sub: &Subscription<M>, topic: &str) -> Option<(M, Option<i64>)> {

@@ -3,7 +3,9 @@
 //!
 //! In order of precedence:
 //! 1. **Stale sensors**: no odometry (or, when the scan is needed, no scan) younger than
-//!    `sensor_timeout` -> zero speed, straight wheels.
+//!    `sensor_timeout` -> zero speed, straight wheels. A sensor's age is the larger of
+//!    its arrival age and its header-stamp age ([`crate::freshness`]), so a re-sent or
+//!    buffered old message does not count as fresh.
 //! 2. **Emergency stop**: the smallest time to collision over the scan's returns below
 //!    `ttc_threshold` -> zero speed. It stays engaged until the TTC has been clear for
 //!    `ttc_release` seconds (no chattering at the threshold). With a corridor
@@ -13,8 +15,13 @@
 //!    `r / (v cos(angle))` over all beams brakes for it: 2 d / v for a wall d metres to
 //!    the side, 0.14 s at 7 m/s and 0.5 m). With `corridor_half_width = 0` the classic
 //!    per-beam formula is used.
-//! 3. **Invalid command** (a non-finite steer or speed) -> zero speed.
-//! 4. **Clamps**: steering to `[-max_steer, max_steer]`, speed to `[min_speed, max_speed]`.
+//! 3. **Blind ahead**: more than `max_invalid_ahead` of the beams within `ahead_half_angle`
+//!    of straight ahead are invalid (REP 117: NaN, or an error code outside
+//!    `[range_min, range_max]`) -> zero speed until a scan sees ahead again. Too-close
+//!    returns (`-inf`) are not invalid: they count for the TTC as obstacles at
+//!    `range_min` ([`crate::scan`]).
+//! 4. **Invalid command** (a non-finite steer or speed) -> zero speed.
+//! 5. **Clamps**: steering to `[-max_steer, max_steer]`, speed to `[min_speed, max_speed]`.
 //!
 //! Times are plain seconds on one monotonic clock chosen by the caller, so tests drive a
 //! virtual clock.
@@ -22,7 +29,9 @@
 use paddock_sim::world::Action;
 
 use crate::BridgeError;
+use crate::mount::LaserMount;
 use crate::msg::LaserScan;
+use crate::scan::Beam;
 
 /// Limits and thresholds.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -43,6 +52,13 @@ pub struct SafetyConfig {
     /// car's half width, 0.155 m on the F1TENTH car, plus a margin; 0: every beam, the
     /// classic per-beam TTC).
     pub corridor_half_width: f64,
+    /// Half angle of the cone ahead checked for invalid beams, rad.
+    pub ahead_half_angle: f64,
+    /// Stop when more than this fraction of the beams ahead are invalid (1: never).
+    pub max_invalid_ahead: f64,
+    /// How fast a sensor's stamp clock may fall behind ours, s/s: the bound on the
+    /// clock-offset estimate behind the stamp age ([`crate::freshness`]).
+    pub max_clock_drift: f64,
 }
 
 impl Default for SafetyConfig {
@@ -55,13 +71,34 @@ impl Default for SafetyConfig {
             ttc_threshold: 0.25,
             ttc_release: 0.5,
             corridor_half_width: 0.2,
+            ahead_half_angle: 20f64.to_radians(),
+            max_invalid_ahead: 0.25,
+            max_clock_drift: 0.01,
         }
     }
 }
 
 impl SafetyConfig {
     pub fn validate(&self) -> Result<(), BridgeError> {
-        let checks: [(&str, f64, bool, &str); 7] = [
+        let checks: [(&str, f64, bool, &str); 10] = [
+            (
+                "max_clock_drift",
+                self.max_clock_drift,
+                (0.0..=1.0).contains(&self.max_clock_drift),
+                "must be in [0, 1] s/s (1: no stamp age; arrival and newer stamps only)",
+            ),
+            (
+                "ahead_half_angle",
+                self.ahead_half_angle,
+                self.ahead_half_angle > 0.0 && self.ahead_half_angle <= std::f64::consts::PI,
+                "must be in (0, pi] rad",
+            ),
+            (
+                "max_invalid_ahead",
+                self.max_invalid_ahead,
+                (0.0..=1.0).contains(&self.max_invalid_ahead),
+                "must be a fraction in [0, 1] (1: never stop for invalid beams)",
+            ),
             (
                 "corridor_half_width",
                 self.corridor_half_width,
@@ -123,6 +160,8 @@ pub enum StopReason {
     StaleOdom { age: Option<f64> },
     /// Time to collision below the threshold (the TTC that engaged it, s).
     Emergency { ttc: f64 },
+    /// Too many invalid beams ahead in the newest scan (invalid, beams in the cone).
+    BlindAhead { invalid: usize, beams: usize },
     /// The driver proposed a non-finite command.
     InvalidCommand,
 }
@@ -135,6 +174,10 @@ impl std::fmt::Display for StopReason {
             Self::StaleScan { age: a } => write!(f, "stale scan ({})", age(a)),
             Self::StaleOdom { age: a } => write!(f, "stale odometry ({})", age(a)),
             Self::Emergency { ttc } => write!(f, "emergency stop (time to collision {ttc:.3} s)"),
+            Self::BlindAhead { invalid, beams } => write!(
+                f,
+                "blind ahead ({invalid} of the {beams} beams ahead invalid)"
+            ),
             Self::InvalidCommand => write!(f, "non-finite command from the driver"),
         }
     }
@@ -156,6 +199,8 @@ pub struct SafetyCounters {
     pub stale: u64,
     pub emergency: u64,
     pub invalid: u64,
+    /// Commands replaced because the scan was blind ahead.
+    pub blind: u64,
     pub clamped: u64,
     /// Times the emergency stop engaged (rising edges).
     pub emergency_engaged: u64,
@@ -170,6 +215,10 @@ pub struct Safety {
     /// The TTC that engaged the stop, while engaged.
     engaged: Option<f64>,
     clear_since: Option<f64>,
+    /// (invalid, beams) ahead in the newest scan, when over the limit.
+    blind: Option<(usize, usize)>,
+    /// Where the scans come from.
+    mount: LaserMount,
     counters: SafetyCounters,
 }
 
@@ -180,6 +229,8 @@ impl Safety {
             config,
             engaged: None,
             clear_since: None,
+            blind: None,
+            mount: LaserMount::default(),
             counters: SafetyCounters {
                 min_ttc: f64::INFINITY,
                 ..SafetyCounters::default()
@@ -195,49 +246,108 @@ impl Safety {
         &self.counters
     }
 
+    /// Take the laser's mount on the car (for TTC and the blind-ahead cone).
+    pub fn set_mount(&mut self, mount: LaserMount) {
+        self.mount = mount;
+    }
+
     /// Is the emergency stop engaged?
     pub fn emergency_engaged(&self) -> bool {
         self.engaged.is_some()
     }
 
-    /// Smallest time to collision over `scan`'s valid returns for a car moving forward at
+    /// Smallest time to collision over `scan`'s returns for a car moving forward at
     /// `speed` (infinite when not approaching anything): inside the straight-ahead strip
-    /// of half width `corridor` when it is > 0, else per beam over all beams.
+    /// of half width `corridor` when it is > 0, else per beam over all beams. Too-close
+    /// beams (`-inf`) count as obstacles at `range_min`; invalid and no-return beams are
+    /// skipped (REP 117).
     pub fn time_to_collision(scan: &LaserScan, speed: f64, corridor: f64) -> f64 {
+        Self::time_to_collision_from(&LaserMount::default(), scan, speed, corridor)
+    }
+
+    /// [`Self::time_to_collision`] for a laser mounted at `mount`: the corridor in
+    /// `base_link`, distances ahead measured from the laser's station along the car
+    /// (`max(mount.x, 0)`: near the car's front on the F1TENTH car; base_link is the
+    /// rear axle, and measuring from it would brake later than before).
+    pub fn time_to_collision_from(
+        mount: &LaserMount,
+        scan: &LaserScan,
+        speed: f64,
+        corridor: f64,
+    ) -> f64 {
         if !(speed.is_finite() && speed > 0.0) {
             return f64::INFINITY;
         }
-        let (lo, hi) = (scan.range_min as f64, scan.range_max as f64);
+        let (lo, hi) = (scan.range_min, scan.range_max);
+        let station = mount.x.max(0.0);
         let mut best = f64::INFINITY;
         for (i, &r) in scan.ranges.iter().enumerate() {
-            let r = r as f64;
-            if !(r.is_finite() && r >= lo && r <= hi) {
+            let Some(r) = Beam::classify(r, lo, hi).obstacle_range(lo as f64) else {
                 continue;
-            }
+            };
             let angle = scan.angle_min as f64 + i as f64 * scan.angle_increment as f64;
-            let (sin, cos) = libm::sincos(angle);
-            if cos <= 0.0 {
+            let (px, py) = mount.point(angle, r);
+            // distance ahead of the laser's station along the car (near its front)
+            let ahead = px - station;
+            if ahead <= 0.0 {
                 continue;
             }
             let ttc = if corridor > 0.0 {
-                if (r * sin).abs() > corridor {
+                if py.abs() > corridor {
                     continue;
                 }
-                r * cos / speed
+                ahead / speed
             } else {
-                r / (speed * cos)
+                // r / (v cos), r and its angle seen from the station
+                (ahead * ahead + py * py) / (speed * ahead)
             };
             best = best.min(ttc);
         }
         best
     }
 
-    /// Update the emergency stop with a new scan taken while moving at `speed`.
+    /// (invalid beams, beams) within `half_angle` of straight ahead.
+    pub fn invalid_ahead(scan: &LaserScan, half_angle: f64) -> (usize, usize) {
+        Self::invalid_ahead_from(&LaserMount::default(), scan, half_angle)
+    }
+
+    /// [`Self::invalid_ahead`] for a laser mounted at `mount` (ahead of the car).
+    pub fn invalid_ahead_from(
+        mount: &LaserMount,
+        scan: &LaserScan,
+        half_angle: f64,
+    ) -> (usize, usize) {
+        let (mut invalid, mut beams) = (0, 0);
+        for (i, &r) in scan.ranges.iter().enumerate() {
+            let angle = scan.angle_min as f64 + i as f64 * scan.angle_increment as f64;
+            if paddock_sim::geometry::wrap_angle(mount.beam_angle(angle)).abs() > half_angle {
+                continue;
+            }
+            beams += 1;
+            if Beam::classify(r, scan.range_min, scan.range_max) == Beam::Invalid {
+                invalid += 1;
+            }
+        }
+        (invalid, beams)
+    }
+
+    /// Update the emergency stop and the blind-ahead check with a new scan taken while
+    /// moving at `speed`.
     pub fn on_scan(&mut self, scan: &LaserScan, speed: f64, now: f64) {
+        let (invalid, beams) =
+            Self::invalid_ahead_from(&self.mount, scan, self.config.ahead_half_angle);
+        let blind = invalid as f64 > self.config.max_invalid_ahead * beams as f64 || beams == 0;
+        match (self.blind.is_some(), blind) {
+            (false, true) => tracing::warn!(invalid, beams, "blind ahead: too many invalid beams"),
+            (true, false) => tracing::info!("seeing ahead again"),
+            _ => {}
+        }
+        self.blind = blind.then_some((invalid, beams));
         if self.config.ttc_threshold <= 0.0 {
             return;
         }
-        let ttc = Self::time_to_collision(scan, speed, self.config.corridor_half_width);
+        let ttc =
+            Self::time_to_collision_from(&self.mount, scan, speed, self.config.corridor_half_width);
         self.counters.min_ttc = self.counters.min_ttc.min(ttc);
         if ttc < self.config.ttc_threshold {
             if self.engaged.is_none() {
@@ -278,6 +388,9 @@ impl Safety {
         } else if let Some(ttc) = self.engaged {
             self.counters.emergency += 1;
             Some(StopReason::Emergency { ttc })
+        } else if let Some((invalid, beams)) = self.blind.filter(|_| needs_scan) {
+            self.counters.blind += 1;
+            Some(StopReason::BlindAhead { invalid, beams })
         } else if !(requested.steer.is_finite() && requested.speed.is_finite()) {
             self.counters.invalid += 1;
             Some(StopReason::InvalidCommand)

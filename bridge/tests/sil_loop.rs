@@ -153,7 +153,9 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
     );
     assert!(rows.iter().any(|r| r.speed_cmd > 3.0 && r.vx > 3.0));
     let csv = tmp("loop.csv");
-    let n = export_csv(&bag, &csv, &paddock_bridge::ros::TopicNames::default()).unwrap();
+    let (n, truncation) =
+        export_csv(&bag, &csv, &paddock_bridge::ros::TopicNames::default()).unwrap();
+    assert_eq!(truncation, None, "the recorder finalised the MCAP");
     assert_eq!(n, rows.len());
     assert!(
         std::fs::read_to_string(&csv)

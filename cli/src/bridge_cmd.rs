@@ -2,12 +2,12 @@
 //! recordings to MCAP and their export to the reality-gap CSV.
 
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
+use paddock_bridge::mount::LaserMount;
 use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
 use paddock_bridge::ros::{Frames, QosConfig, RosConfig, parse_domain_id};
 use paddock_bridge::safety::SafetyConfig;
@@ -26,13 +26,16 @@ pub struct BridgeArgs {
 #[derive(Subcommand)]
 enum BridgeCommand {
     /// Run a driver on the car: subscribe /scan and /odom, publish /drive, behind the
-    /// safety layer (stale-sensor stop, clamps, time-to-collision stop, stop on Ctrl-C).
+    /// safety layer (stale-sensor stop, clamps, time-to-collision stop; zero speed on
+    /// every exit: SIGINT, SIGTERM, SIGHUP, a failing driver).
     Drive(DriveArgs),
     /// The software-in-the-loop car: the simulator with the car's topics, in real time.
     Sil(SilArgs),
-    /// Record /scan, /odom and /drive to an MCAP file (a ROS 2 bag).
+    /// Record /scan, /odom and /drive to an MCAP file (a ROS 2 bag), finalised on SIGINT,
+    /// SIGTERM and SIGHUP.
     Record(RecordArgs),
-    /// Export an MCAP recording to the reality-gap CSV (t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate).
+    /// Export a recording (MCAP, rosbag2 bag folder, .db3) to the reality-gap CSV
+    /// (t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate).
     ExportCsv(ExportArgs),
 }
 
@@ -161,6 +164,29 @@ struct DriveArgs {
     /// (0: every beam, the classic per-beam TTC).
     #[arg(long, default_value_t = 0.2)]
     ttc_corridor: f64,
+    /// Stop while more than this fraction of the scan's beams within 20 degrees of
+    /// straight ahead are invalid (REP 117: NaN or an error code; 1: never).
+    #[arg(long, default_value_t = 0.25)]
+    max_invalid_ahead: f64,
+    /// How fast a sensor's header-stamp clock may fall behind this host's, s/s: the
+    /// bound of the clock-offset estimate behind the stamp age (a SIL car slower than
+    /// real time, `--rate R` < 1, needs at least 1 - R; 1 turns the stamp age off).
+    #[arg(long, default_value_t = 0.01)]
+    max_clock_drift: f64,
+    /// The laser's position ahead of base_link, m. Any --laser-* flag sets the mount;
+    /// without them it comes from /tf_static (base frame -> laser frame), and until
+    /// that arrives the laser is taken to sit where the simulator's does (base_link).
+    #[arg(long, allow_hyphen_values = true)]
+    laser_x: Option<f64>,
+    /// The laser's position to the left of base_link, m.
+    #[arg(long, allow_hyphen_values = true)]
+    laser_y: Option<f64>,
+    /// The laser's yaw on the car, rad (pi: looking backwards).
+    #[arg(long, allow_hyphen_values = true)]
+    laser_yaw: Option<f64>,
+    /// The laser is mounted upside down (its beams sweep clockwise).
+    #[arg(long)]
+    laser_flipped: bool,
     /// Least command rate, Hz (commands also follow every new sensor message).
     #[arg(long, default_value_t = 40.0)]
     rate_hz: f64,
@@ -204,6 +230,11 @@ struct SilArgs {
     /// LIDAR noise standard deviation, m.
     #[arg(long, default_value_t = 0.01)]
     lidar_noise: f64,
+    /// The simulated laser's position ahead of the car's reference point (base_link),
+    /// m: 0 as f1tenth_gym_ros (`scan_distance_to_base_link`); 0.27 is where
+    /// f1tenth_system mounts the Hokuyo. Published on /tf_static.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    laser_x: f64,
     /// What a collision does: stop (put back and halted), terminate, ignore.
     #[arg(long, default_value = "stop")]
     collision: String,
@@ -236,7 +267,8 @@ struct RecordArgs {
 
 #[derive(Args)]
 struct ExportArgs {
-    /// The MCAP recording.
+    /// The recording: an MCAP file (one never finalised is read up to its last complete
+    /// chunk), a rosbag2 bag folder (SQLite3 or MCAP storage) or a `.db3` file.
     recording: PathBuf,
     #[arg(long)]
     out: PathBuf,
@@ -255,13 +287,45 @@ pub fn run(args: &BridgeArgs) -> Result<()> {
     }
 }
 
-/// A flag set by Ctrl-C (SIGINT) and SIGTERM.
-fn stop_flag() -> Result<Arc<AtomicBool>> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let s = stop.clone();
-    ctrlc::set_handler(move || s.store(true, Ordering::Relaxed))
-        .context("installing the Ctrl-C handler")?;
-    Ok(stop)
+/// Set by SIGINT (Ctrl-C), SIGTERM (systemd, docker stop, launch) and SIGHUP (the
+/// terminal or SSH session closing): each ends a node through its clean stop (the drive
+/// node's zero-speed command, the recorder's finalised MCAP).
+static STOP: AtomicBool = AtomicBool::new(false);
+/// The signal that set [`STOP`].
+static STOP_SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+extern "C" fn on_stop_signal(signal: std::ffi::c_int) {
+    // only atomic stores: async-signal-safe
+    STOP_SIGNAL.store(signal, Ordering::Relaxed);
+    STOP.store(true, Ordering::Relaxed);
+}
+
+/// Install the stop handler for SIGINT, SIGTERM and SIGHUP.
+fn stop_flag() -> Result<&'static AtomicBool> {
+    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
+    let action = SigAction::new(
+        SigHandler::Handler(on_stop_signal),
+        SaFlags::SA_RESTART,
+        SigSet::empty(),
+    );
+    for signal in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
+        // SAFETY: the handler only stores to atomics, which is async-signal-safe, and no
+        // other handler of ours is replaced (the bridge commands install none else)
+        unsafe { sigaction(signal, &action) }
+            .with_context(|| format!("installing the {signal} handler"))?;
+    }
+    Ok(&STOP)
+}
+
+/// Say which signal ended a node, if one did.
+fn report_signal() {
+    let signal = STOP_SIGNAL.load(Ordering::Relaxed);
+    if signal != 0 {
+        let name = nix::sys::signal::Signal::try_from(signal)
+            .map(|s| s.as_str())
+            .unwrap_or("a signal");
+        eprintln!("stopped by {name}");
+    }
 }
 
 fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
@@ -304,16 +368,31 @@ fn drive(a: &DriveArgs) -> Result<()> {
             ttc_threshold: a.ttc,
             ttc_release: a.ttc_release,
             corridor_half_width: a.ttc_corridor,
+            max_invalid_ahead: a.max_invalid_ahead,
+            max_clock_drift: a.max_clock_drift,
+            ..SafetyConfig::default()
         },
+        laser_mount: (a.laser_x.is_some()
+            || a.laser_y.is_some()
+            || a.laser_yaw.is_some()
+            || a.laser_flipped)
+            .then(|| LaserMount {
+                x: a.laser_x.unwrap_or(0.0),
+                y: a.laser_y.unwrap_or(0.0),
+                yaw: a.laser_yaw.unwrap_or(0.0),
+                flipped: a.laser_flipped,
+            }),
         ..DriveOptions::default()
     };
     let core = DriveCore::new(driver, options.lidar.clone(), options.safety)?;
     let stop = stop_flag()?;
     eprintln!(
-        "driving {} (map {}) on {} -> {}, domain {}; Ctrl-C stops the car",
+        "driving {} (map {}) on {} -> {}, domain {}; Ctrl-C, SIGTERM or SIGHUP stops the car",
         spec.name, circuit.name, ros.topics.scan, ros.topics.drive, ros.domain_id
     );
-    let s = run_drive(core, &ros, &options, &stop)?;
+    let s = run_drive(core, &ros, &options, stop);
+    report_signal();
+    let s = s?;
     let l = &s.latency;
     let c = &s.safety;
     println!(
@@ -331,9 +410,18 @@ fn drive(a: &DriveArgs) -> Result<()> {
             s.trigger, e.count, e.mean_ms, e.p50_ms, e.p99_ms, e.max_ms
         );
     }
+    let m = &s.laser_mount;
     println!(
-        "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} clamped, {} invalid",
-        c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.clamped, c.invalid
+        "laser mount ({}): x {:.3} m, y {:.3} m, yaw {:.3} rad{}",
+        s.laser_mount_source,
+        m.x,
+        m.y,
+        m.yaw,
+        if m.flipped { ", flipped" } else { "" }
+    );
+    println!(
+        "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} blind-ahead stops, {} clamped, {} invalid",
+        c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.blind, c.clamped, c.invalid
     );
     Ok(())
 }
@@ -357,6 +445,10 @@ fn sil(a: &SilArgs) -> Result<()> {
         anyhow::bail!("--lidar-noise = {}: must be a number >= 0", a.lidar_noise);
     }
     lidar.noise_std = a.lidar_noise;
+    if !(a.laser_x.is_finite() && a.laser_x.abs() <= 1.0) {
+        anyhow::bail!("--laser-x = {}: must be within +-1 m", a.laser_x);
+    }
+    lidar.mount_offset = a.laser_x;
     let options = SilOptions {
         map: a.map.clone(),
         rate: a.rate,
@@ -378,7 +470,9 @@ fn sil(a: &SilArgs) -> Result<()> {
         "SIL car on {} at {}x real time, domain {}; Ctrl-C ends",
         a.map, a.rate, ros.domain_id
     );
-    let s = run_sil(&options, &ros, &stop)?;
+    let s = run_sil(&options, &ros, stop);
+    report_signal();
+    let s = s?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());
@@ -424,8 +518,10 @@ fn rec(a: &RecordArgs) -> Result<()> {
             seconds: a.seconds,
             clock,
         },
-        &stop,
-    )?;
+        stop,
+    );
+    report_signal();
+    let s = s?;
     for (topic, n) in &s.messages {
         println!("{topic}: {n} messages");
     }
@@ -439,7 +535,10 @@ fn export(a: &ExportArgs) -> Result<()> {
         odom: a.odom_topic.clone(),
         ..Default::default()
     };
-    let rows = export_csv(&a.recording, &a.out, &topics)?;
+    let (rows, truncation) = export_csv(&a.recording, &a.out, &topics)?;
+    if let Some(t) = truncation {
+        eprintln!("{}: {t}", a.recording.display());
+    }
     println!("wrote {} ({rows} rows)", a.out.display());
     Ok(())
 }

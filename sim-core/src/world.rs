@@ -698,13 +698,8 @@ impl World {
                     .map(|(_, o)| *o),
             );
             self.seen.extend_from_slice(&state.obstacles);
-            let offset = self.config.lidar.mount_offset;
-            let origin = Pose::new(
-                pose.x + offset * libm::cos(pose.theta),
-                pose.y + offset * libm::sin(pose.theta),
-                pose.theta,
-            );
-            self.lidar.scan(&self.circuit.map, origin, &self.seen, out);
+            // the LIDAR places its origin `mount_offset` ahead of the pose itself
+            self.lidar.scan(&self.circuit.map, pose, &self.seen, out);
             if self.config.lidar.noise_std > 0.0 {
                 self.lidar.add_noise(out, &mut agent.noise);
             }

@@ -161,6 +161,32 @@ fn scan_sees_the_car_ahead() {
     );
 }
 
+/// Regression: the world added `lidar.mount_offset` to the pose and the LIDAR added it
+/// again, so a laser mounted 0.25 m ahead scanned from 0.5 m ahead.
+#[test]
+fn a_mounted_laser_scans_from_its_mount_once() {
+    let p0 = Pose::new(R, 0.0, std::f64::consts::FRAC_PI_2);
+    let scan_with = |offset: f64| {
+        let mut cfg = WorldConfig::with_agents(1);
+        cfg.lidar.noise_std = 0.0;
+        cfg.lidar.mount_offset = offset;
+        let mut w = World::new(ring(), cfg).unwrap();
+        w.reset(0, &Starts::Poses(vec![p0])).unwrap();
+        w.observation().unwrap().scan(0).to_vec()
+    };
+    let at_base = scan_with(0.0);
+    let mounted = scan_with(0.25);
+    // the same as an unmounted laser on a car 0.25 m further along its heading
+    let mut cfg = WorldConfig::with_agents(1);
+    cfg.lidar.noise_std = 0.0;
+    let mut w = World::new(ring(), cfg).unwrap();
+    let ahead = Pose::new(R, 0.25, std::f64::consts::FRAC_PI_2);
+    w.reset(0, &Starts::Poses(vec![ahead])).unwrap();
+    let from_mount = w.observation().unwrap().scan(0).to_vec();
+    assert_eq!(mounted, from_mount);
+    assert_ne!(mounted, at_base);
+}
+
 fn crash_world(mode: CollisionMode) -> World {
     let mut cfg = WorldConfig::with_agents(1);
     cfg.collision_mode = mode;

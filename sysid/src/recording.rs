@@ -92,19 +92,22 @@ impl Default for McapTopics {
 pub use paddock_sim::geometry::wrap_angle as wrap_pi;
 
 impl Recording {
-    /// Load a `.csv` or `.mcap` file (by extension; anything else is read as CSV).
+    /// Load a recording: a ROS 2 bag (an `.mcap` file, one never finalised read up to its
+    /// last complete chunk; a rosbag2 bag folder in SQLite3 or MCAP storage; a `.db3`
+    /// file), or else a CSV file.
     pub fn load(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
-        let bytes = std::fs::read(path).map_err(|source| SysidError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-        let is_mcap = path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
-            || bytes.starts_with(b"\x89MCAP");
-        let rec = if is_mcap {
-            Self::from_mcap(&bytes, topics)?
+        let rec = if paddock_recordings::is_bag(path) {
+            let bag = paddock_recordings::read_bag(path, &[&topics.drive, &topics.odom]).map_err(
+                |e| SysidError::Format {
+                    message: e.to_string(),
+                },
+            )?;
+            Self::from_bag(bag, topics)?
         } else {
+            let bytes = std::fs::read(path).map_err(|source| SysidError::Io {
+                path: path.display().to_string(),
+                source,
+            })?;
             let text = String::from_utf8(bytes).map_err(|e| SysidError::Format {
                 message: format!(
                     "{} is not UTF-8 text (byte {}): not a CSV recording",
@@ -268,31 +271,35 @@ impl Recording {
     /// `nav_msgs/msg/Odometry` on the odometry topic, both CDR. Time is the log time,
     /// from the first message of either topic.
     pub fn from_mcap(bytes: &[u8], topics: &McapTopics) -> Result<Self, SysidError> {
-        let mcap_err = |e: mcap::McapError| SysidError::Format {
-            message: format!("not a readable MCAP file: {e}"),
-        };
-        let stream = mcap::MessageStream::new(bytes).map_err(mcap_err)?;
+        let bag = paddock_recordings::read_mcap(
+            bytes,
+            Path::new("the MCAP recording"),
+            &[&topics.drive, &topics.odom],
+        )
+        .map_err(|e| SysidError::Format {
+            message: e.to_string(),
+        })?;
+        Self::from_bag(bag, topics)
+    }
+
+    fn from_bag(bag: paddock_recordings::Bag, topics: &McapTopics) -> Result<Self, SysidError> {
         let mut drive = Vec::new();
         let mut odom = Vec::new();
-        let mut seen: BTreeMap<String, usize> = BTreeMap::new();
-        for msg in stream {
-            let msg = msg.map_err(mcap_err)?;
-            let topic = &msg.channel.topic;
-            *seen.entry(topic.clone()).or_default() += 1;
-            if *topic == topics.drive {
+        for msg in &bag.messages {
+            if msg.topic == topics.drive {
                 let (steer, speed) =
                     decode_ackermann(&msg.data).map_err(|m| SysidError::Format {
                         message: format!("{} message {}: {m}", topics.drive, drive.len()),
                     })?;
                 drive.push((msg.log_time, steer, speed));
-            } else if *topic == topics.odom {
+            } else if msg.topic == topics.odom {
                 let s = decode_odometry(&msg.data).map_err(|m| SysidError::Format {
                     message: format!("{} message {}: {m}", topics.odom, odom.len()),
                 })?;
                 odom.push((msg.log_time, s));
             }
         }
-        let known = seen.keys().cloned().collect::<Vec<_>>().join(", ");
+        let known = bag.topics.keys().cloned().collect::<Vec<_>>().join(", ");
         if drive.is_empty() {
             return Err(SysidError::Format {
                 message: format!(
@@ -314,6 +321,9 @@ impl Recording {
         let t0 = drive[0].0.min(odom[0].0);
         let secs = |ns: u64| (ns - t0) as f64 * 1e-9;
         let mut rec = Recording::default();
+        if let Some(t) = &bag.truncation {
+            rec.warnings.push(t.to_string());
+        }
         for (t, steer, speed) in drive {
             if !(steer.is_finite() && speed.is_finite()) {
                 rec.warnings.push(format!(

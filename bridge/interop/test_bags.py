@@ -1,0 +1,209 @@
+"""Recordings from real life, read by `paddock bridge export-csv` and `paddock sysid`.
+
+- A rosbag2 bag in SQLite3 storage (`.db3`, Humble's default), written by the third-party
+  `rosbags` library (pure Python, the rosbag2 layout: bag folder with metadata.yaml),
+  from a `paddock sysid synth` recording: export-csv gives back the same rows, from the
+  folder and from the bare .db3, and `paddock sysid` analyses the bag.
+- A recording cut off without finalising (the recorder killed with SIGKILL, as a power
+  cut would): export-csv reads it up to its last complete chunk and says how much it
+  recovered.
+- Channels of a `paddock bridge record` MCAP carry rosbag2's `offered_qos_profiles`.
+"""
+
+import csv
+import math
+import signal
+import subprocess
+import time
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
+from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from ros2_node import CycloneRosNode, default_qos, wait_until
+from ros2_types import AckermannDriveStamped, LaserScan, Odometry
+from test_cyclone_interop import corridor_scan, drive_cmd, failure, odometry, stamp_now
+
+ACKERMANN_DRIVE = """float32 steering_angle
+float32 steering_angle_velocity
+float32 speed
+float32 acceleration
+float32 jerk
+"""
+ACKERMANN_DRIVE_STAMPED = """std_msgs/Header header
+ackermann_msgs/AckermannDrive drive
+"""
+
+
+def humble_typestore():
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ts.register(get_types_from_msg(ACKERMANN_DRIVE, "ackermann_msgs/msg/AckermannDrive"))
+    ts.register(
+        get_types_from_msg(ACKERMANN_DRIVE_STAMPED, "ackermann_msgs/msg/AckermannDriveStamped")
+    )
+    return ts
+
+
+def run(paddock_bin, *args, timeout=300):
+    return subprocess.run(
+        [paddock_bin, *args], capture_output=True, text=True, timeout=timeout, check=False
+    )
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def write_db3_bag(rows, bag_dir):
+    """The rows of a reality-gap CSV as a rosbag2 SQLite3 bag: a drive command and an
+    odometry message per row, stamped and logged at the row's time (from 1.7e9 s)."""
+    ts = humble_typestore()
+    t = ts.types
+    Time = t["builtin_interfaces/msg/Time"]
+    Header = t["std_msgs/msg/Header"]
+    Odom = t["nav_msgs/msg/Odometry"]
+    Drive = t["ackermann_msgs/msg/AckermannDrive"]
+    DriveStamped = t["ackermann_msgs/msg/AckermannDriveStamped"]
+    g = t
+    base = 1_700_000_000_000_000_000
+    with Writer(bag_dir, version=8, storage_plugin=StoragePlugin.SQLITE3) as w:
+        drive_conn = w.add_connection("/drive", DriveStamped.__msgtype__, typestore=ts)
+        odom_conn = w.add_connection("/odom", Odom.__msgtype__, typestore=ts)
+        cov = __import__("numpy").zeros(36)
+        for r in rows:
+            ns = base + round(r["t"] * 1e9)
+            stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+            cmd = DriveStamped(
+                header=Header(stamp=stamp, frame_id="base_link"),
+                drive=Drive(
+                    steering_angle=r["steer_cmd"],
+                    steering_angle_velocity=0.0,
+                    speed=r["speed_cmd"],
+                    acceleration=0.0,
+                    jerk=0.0,
+                ),
+            )
+            w.write(drive_conn, ns, ts.serialize_cdr(cmd, DriveStamped.__msgtype__))
+            half = 0.5 * r["yaw"]
+            odom = Odom(
+                header=Header(stamp=stamp, frame_id="odom"),
+                child_frame_id="base_link",
+                pose=g["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=g["geometry_msgs/msg/Pose"](
+                        position=g["geometry_msgs/msg/Point"](x=r["x"], y=r["y"], z=0.0),
+                        orientation=g["geometry_msgs/msg/Quaternion"](
+                            x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)
+                        ),
+                    ),
+                    covariance=cov,
+                ),
+                twist=g["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=g["geometry_msgs/msg/Twist"](
+                        linear=g["geometry_msgs/msg/Vector3"](x=r["vx"], y=r["vy"], z=0.0),
+                        angular=g["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=r["yaw_rate"]),
+                    ),
+                    covariance=cov,
+                ),
+            )
+            w.write(odom_conn, ns, ts.serialize_cdr(odom, Odom.__msgtype__))
+
+
+def test_a_rosbags_db3_bag_is_read_by_export_csv_and_sysid(paddock_bin, tmp_path):
+    synth = tmp_path / "synth.csv"
+    r = run(paddock_bin, "sysid", "synth", "--out", str(synth), "--seconds", "40")
+    assert r.returncode == 0, r.stderr
+    rows = read_csv(synth)
+    assert len(rows) > 500
+    bag = tmp_path / "car_bag"
+    write_db3_bag(rows, bag)
+    (db3,) = bag.glob("*.db3")
+
+    for source in (bag, db3):
+        out = tmp_path / f"export-{source.name}.csv"
+        r = run(paddock_bin, "bridge", "export-csv", str(source), "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        got = read_csv(out)
+        # rows from the first command on: here every row has its command
+        assert len(got) == len(rows), (len(got), len(rows))
+        for a, b in zip(got, rows):
+            assert a["t"] == pytest.approx(b["t"], abs=1e-9)
+            # commands travel as float32, the state as float64
+            assert a["steer_cmd"] == pytest.approx(b["steer_cmd"], abs=1e-6)
+            assert a["speed_cmd"] == pytest.approx(b["speed_cmd"], rel=1e-6)
+            for k in ("x", "y", "vx", "vy", "yaw_rate"):
+                assert a[k] == pytest.approx(b[k], abs=1e-9), k
+            assert math.remainder(a["yaw"] - b["yaw"], math.tau) == pytest.approx(0.0, abs=1e-9)
+
+    report = tmp_path / "sysid"
+    r = run(
+        paddock_bin, "sysid", "--recording", str(bag), "--out", str(report),
+        "--no-plots", "--effects", "steering_offset", "--folds", "2",
+    )
+    assert r.returncode == 0, r.stderr
+    assert (report / "report.json").is_file()
+
+
+def test_a_killed_recorder_leaves_a_recording_export_csv_recovers(paddock, domain_id, tmp_path):
+    bag = tmp_path / "cut.mcap"
+    proc = paddock("record", "--out", str(bag), "--domain-id", str(domain_id))
+    car = CycloneRosNode(domain_id)
+    odom_pub = car.publisher("/odom", Odometry, default_qos(10))
+    drive_pub = car.publisher("/drive", AckermannDriveStamped, default_qos(10))
+    scan_pub = car.publisher("/scan", LaserScan, default_qos(20))
+    x = 0.0
+    end = time.monotonic() + 6.0
+    while time.monotonic() < end and proc.alive():
+        stamp = stamp_now()
+        odom_pub.write(odometry(stamp, x, 1.0))
+        drive_pub.write(drive_cmd(1.0, 0.1))
+        scan_pub.write(corridor_scan(stamp, left=1.0, right=1.0))
+        x += 0.01
+        time.sleep(0.01)
+    # the power cut: no chance to finalise
+    proc.proc.send_signal(signal.SIGKILL)
+    assert wait_until(lambda: not proc.alive(), 5.0)
+    proc.stop()
+    size = bag.stat().st_size
+    assert size > 256 * 1024, failure(proc, f"only {size} bytes recorded")
+    with open(bag, "rb") as f:
+        with pytest.raises(Exception):
+            make_reader(f).get_summary()  # the reference reader refuses it whole
+
+    out = tmp_path / "cut.csv"
+    r = subprocess.run(
+        [proc.proc.args[0], "bridge", "export-csv", str(bag), "--out", str(out)],
+        capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "not finalised" in r.stderr and "recovered" in r.stderr, r.stderr
+    rows = read_csv(out)
+    assert len(rows) > 50, len(rows)
+    assert all(row["speed_cmd"] == 1.0 for row in rows)
+
+
+def test_recorded_channels_offer_their_qos_profiles(paddock, domain_id, tmp_path):
+    bag = tmp_path / "qos.mcap"
+    proc = paddock("record", "--out", str(bag), "--domain-id", str(domain_id), "--seconds", "3")
+    car = CycloneRosNode(domain_id)
+    odom_pub = car.publisher("/odom", Odometry, default_qos(10))
+    while proc.alive():
+        odom_pub.write(odometry(stamp_now(), 0.0, 1.0))
+        time.sleep(0.02)
+    assert proc.stop() == 0, failure(proc, "exit status")
+    with open(bag, "rb") as f:
+        summary = make_reader(f).get_summary()
+    topics = {c.topic: c for c in summary.channels.values()}
+    assert set(topics) >= {"/scan", "/odom", "/drive"}, topics
+    for topic, channel in topics.items():
+        # parsed by rosbags' own reader of rosbag2's QoS YAML
+        profiles = parse_qos(channel.metadata["offered_qos_profiles"])
+        assert len(profiles) == 1, (topic, profiles)
+        p = profiles[0]
+        assert p.history == QosHistory.KEEP_LAST and p.depth >= 1, p
+        assert p.reliability == QosReliability.RELIABLE, p
+        assert p.durability == QosDurability.VOLATILE, p
+        assert not p.avoid_ros_namespace_conventions
