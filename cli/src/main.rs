@@ -13,6 +13,7 @@ mod rollout_cmd;
 mod sysid_cmd;
 mod sysid_plots;
 mod sysid_synth;
+mod sysid_synth_runs;
 mod tune_cmd;
 
 use std::path::PathBuf;
@@ -62,7 +63,7 @@ enum Command {
     },
     /// The reality-gap tool: find and fit the physics a recording shows the simulator lacks
     /// (`paddock sysid synth` writes a recording with hidden effects).
-    Sysid(sysid_cmd::SysidArgs),
+    Sysid(Box<sysid_cmd::SysidArgs>),
     /// The ROS 2 bridge: a driver on the car, the software-in-the-loop car, recordings.
     Bridge(bridge_cmd::BridgeArgs),
     /// Shipped maps and the track generator.

@@ -1,7 +1,7 @@
 //! `paddock sysid`: the reality-gap tool (analysis of a recording), and `paddock sysid
 //! synth` (a recording with hidden effects, for proofs and demos).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -30,9 +30,11 @@ enum SysidCommand {
 
 #[derive(Args, Debug)]
 struct AnalyseArgs {
-    /// The recording: CSV (t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate) or MCAP (ROS 2 bag).
+    /// A recording: CSV (t,steer_cmd,speed_cmd,x,y,yaw[,vx,vy,yaw_rate]) or MCAP (ROS 2
+    /// bag), or a folder of them. Repeatable: all runs are fitted jointly with one
+    /// parameter set, and whole runs are held out.
     #[arg(long)]
-    recording: Option<PathBuf>,
+    recording: Vec<PathBuf>,
     /// Nominal vehicle YAML (default: the simulator's default vehicle).
     #[arg(long)]
     vehicle: Option<PathBuf>,
@@ -63,6 +65,40 @@ struct AnalyseArgs {
     /// Skip the plots.
     #[arg(long)]
     no_plots: bool,
+    /// The car's VESC driver parameters (f1tenth_system `vesc.yaml`): the report gives the
+    /// corrected `steering_angle_to_servo_*` and `speed_to_erpm_gain` for a fitted
+    /// calibration error.
+    #[arg(long)]
+    vesc_config: Option<PathBuf>,
+    /// Worker threads of the analysis (default: every core).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+/// The files a `--recording` names: the file itself, or a folder's recordings (CSV and
+/// MCAP, by name; a rosbag2 folder's MCAP files), in name order.
+fn recording_files(path: &Path) -> Result<Vec<PathBuf>> {
+    if !path.is_dir() {
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+        .with_context(|| format!("reading the folder {}", path.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.is_file()
+                && p.extension().is_some_and(|e| {
+                    e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("mcap")
+                })
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        anyhow::bail!(
+            "the folder {} holds no recordings (*.csv, *.mcap)",
+            path.display()
+        );
+    }
+    Ok(files)
 }
 
 pub fn run(args: &SysidArgs) -> Result<()> {
@@ -70,20 +106,45 @@ pub fn run(args: &SysidArgs) -> Result<()> {
         return sysid_synth::run(s);
     }
     let a = &args.analyse;
-    let (Some(recording), Some(out)) = (&a.recording, &a.out) else {
+    let (false, Some(out)) = (a.recording.is_empty(), &a.out) else {
         anyhow::bail!(
-            "paddock sysid needs --recording FILE and --out DIR (or the `synth` subcommand)"
+            "paddock sysid needs --recording FILE (or FOLDER, repeatable) and --out DIR (or the `synth` subcommand)"
         );
     };
+    if let Some(n) = a.threads {
+        if n == 0 {
+            anyhow::bail!("--threads 0: give at least 1");
+        }
+        paddock_sysid::set_threads(n)?;
+    }
     let topics = McapTopics {
         drive: a.drive_topic.clone(),
         odom: a.odom_topic.clone(),
     };
-    let rec = Recording::load(recording, &topics)
-        .with_context(|| format!("loading the recording {}", recording.display()))?;
+    let mut parts = Vec::new();
+    for path in &a.recording {
+        for file in recording_files(path)? {
+            let mut rec = Recording::read(&file, &topics)
+                .with_context(|| format!("loading the recording {}", file.display()))?;
+            let name = file.file_name().map_or_else(
+                || file.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            );
+            for (k, r) in rec.run_info.iter_mut().enumerate() {
+                if r.name == "recording" || r.name == "bag" {
+                    r.name = name.clone();
+                } else if r.name.starts_with("bag#") {
+                    r.name = format!("{name}#{}", k + 1);
+                }
+            }
+            parts.push(rec);
+        }
+    }
+    let rec = Recording::join(parts);
     for w in &rec.warnings {
         tracing::warn!("{w}");
     }
+    rec.check()?;
     let nominal = match &a.vehicle {
         Some(p) => VehicleParams::load(p)?,
         None => VehicleParams::default(),
@@ -116,7 +177,18 @@ pub fn run(args: &SysidArgs) -> Result<()> {
     };
     let analysis = analyze(&rec, &nominal, &opts, &progress)?;
     bar.finish_and_clear();
-    report::write(out, &analysis, &rec)?;
+    let vesc = match &a.vesc_config {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("reading the VESC config {}", p.display()))?;
+            Some(
+                paddock_sysid::explain::vesc_params(&text)
+                    .with_context(|| format!("the VESC config {}", p.display()))?,
+            )
+        }
+        None => None,
+    };
+    report::write_with(out, &analysis, &rec, vesc.as_deref())?;
     if !a.no_plots {
         sysid_plots::write_all(out, &rec, &analysis)?;
     }

@@ -21,6 +21,8 @@ use paddock_sysid::effects::{EffectKind, parse_effect_spec};
 use paddock_sysid::recording::{Command, McapTopics, Recording, StateSample, wrap_pi};
 use serde_json::json;
 
+use crate::sysid_synth_runs::{self, DayPlan, Manoeuvre};
+
 const DT: f64 = 0.01;
 
 #[derive(Args, Debug)]
@@ -34,9 +36,27 @@ pub struct SynthArgs {
     /// Map name or directory.
     #[arg(long)]
     map: Option<String>,
-    /// Length of the recording [s].
-    #[arg(long, default_value_t = 60.0)]
-    seconds: f64,
+    /// Length of the recording [s] (default 60; with --manoeuvre, of each run: default 3).
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Short open-loop manoeuvres instead of laps (comma-separated, taken in turn):
+    /// step (a steering step and its reversal), arc (constant radius), speed-step.
+    #[arg(long, value_delimiter = ',')]
+    manoeuvre: Vec<String>,
+    /// Number of runs with --manoeuvre; --out is then a folder of run-NN.csv files and
+    /// truth.json. Runs alternate low (1.5-2.5 m/s) and racing (4-5.5 m/s) speeds.
+    #[arg(long, default_value_t = 1)]
+    runs: usize,
+    /// Logging rate with --manoeuvre [Hz].
+    #[arg(long, default_value_t = 40.0)]
+    rate: f64,
+    /// Channels logged: `all`, or `pose+speed` (no vy, no yaw_rate, as a car with a
+    /// localiser and the VESC's speed).
+    #[arg(long, default_value = "all")]
+    channels: String,
+    /// How manoeuvre runs start: rest, moving, or mixed (every other run in motion).
+    #[arg(long, default_value = "mixed")]
+    start: String,
     /// Seed of the noise, the disturbances and the logging jitter.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -74,8 +94,17 @@ impl Ou {
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
-    if !(args.seconds.is_finite() && (5.0..=3600.0).contains(&args.seconds)) {
-        bail!("--seconds {} must be in [5, 3600]", args.seconds);
+    let full_state = match args.channels.as_str() {
+        "all" => true,
+        "pose+speed" => false,
+        other => bail!("--channels {other:?}: all or pose+speed"),
+    };
+    if !args.manoeuvre.is_empty() {
+        return run_day(args, full_state);
+    }
+    let seconds = args.seconds.unwrap_or(60.0);
+    if !(seconds.is_finite() && (5.0..=3600.0).contains(&seconds)) {
+        bail!("--seconds {seconds} must be in [5, 3600]");
     }
     if !(args.lat_accel.is_finite() && args.lat_accel > 0.0) {
         bail!("--lat-accel {} must be > 0", args.lat_accel);
@@ -139,9 +168,15 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     let mut cmd = (0.0, 0.0);
     let mut prev = car.state;
     let mut prev_body = car.body_velocity();
-    let steps = (args.seconds / DT).floor() as usize;
+    let steps = (seconds / DT).floor() as usize;
+    let delay = measurement_delay(&hidden);
+    let mut hist = sysid_synth_runs::History {
+        t0: 0.0,
+        states: Vec::new(),
+    };
     for k in 0..=steps {
         let tk = k as f64 * DT;
+        hist.push(&car);
         // controller cycles that fall in (t_{k-1}, t_k]: measure, decide, log
         while next_row <= tk + 1e-9 {
             let f = if k == 0 {
@@ -153,14 +188,19 @@ pub fn run(args: &SynthArgs) -> Result<()> {
             let lerp = |a: f64, b: f64| a + f * (b - a);
             let (vx0, vy0) = prev_body;
             let (vx1, vy1) = car.body_velocity();
-            let exact = [
-                lerp(prev.x, now.x),
-                lerp(prev.y, now.y),
-                prev.yaw + f * wrap_pi(now.yaw - prev.yaw),
-                lerp(vx0, vx1),
-                lerp(vy0, vy1),
-                lerp(prev.yaw_rate, now.yaw_rate),
-            ];
+            let exact = if delay > 0.0 {
+                // a sensor that lags: the state it reports is `delay` old
+                hist.at(next_row - delay)
+            } else {
+                [
+                    lerp(prev.x, now.x),
+                    lerp(prev.y, now.y),
+                    prev.yaw + f * wrap_pi(now.yaw - prev.yaw),
+                    lerp(vx0, vx1),
+                    lerp(vy0, vy1),
+                    lerp(prev.yaw_rate, now.yaw_rate),
+                ]
+            };
             let m: [f64; 6] = std::array::from_fn(|c| exact[c] + NOISE[c] * rng.normal());
             let dropped = next_row > 0.0 && rng.uniform() < 0.03;
             if !dropped {
@@ -177,8 +217,8 @@ pub fn run(args: &SynthArgs) -> Result<()> {
                     y: m[1],
                     yaw: wrap_pi(m[2]),
                     vx: m[3],
-                    vy: m[4],
-                    yaw_rate: m[5],
+                    vy: if full_state { m[4] } else { f64::NAN },
+                    yaw_rate: if full_state { m[5] } else { f64::NAN },
                 });
             }
             next_row = ((next_row + 0.025 + rng.uniform_range(-0.005, 0.005)) * 1e4).round() / 1e4;
@@ -216,7 +256,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     let truth_json = json!({
         "map": circuit.name,
         "seed": args.seed,
-        "seconds": args.seconds,
+        "seconds": seconds,
         "effects": hidden.iter().map(|(k, v)| json!({"name": k.name(), "params": k.params_json(v)})).collect::<Vec<_>>(),
         "noise_std": {"x": NOISE[0], "y": NOISE[1], "yaw": NOISE[2], "vx": NOISE[3], "vy": NOISE[4], "yaw_rate": NOISE[5]},
     });
@@ -229,8 +269,101 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         "wrote {} ({} rows over {:.1} s on {}, hidden: {}) and {}",
         out.display(),
         rec.states.len(),
-        args.seconds,
+        seconds,
         circuit.name,
+        if hidden.is_empty() {
+            "nothing".to_string()
+        } else {
+            hidden
+                .iter()
+                .map(|(k, v)| format!("{} {}", k.name(), k.params_json(v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        },
+        sidecar.display()
+    );
+    Ok(())
+}
+
+/// The hidden measurement delay (0 without one).
+fn measurement_delay(hidden: &[(EffectKind, Vec<f64>)]) -> f64 {
+    hidden
+        .iter()
+        .find(|(k, _)| *k == EffectKind::MeasurementDelay)
+        .map_or(0.0, |(_, v)| v[0])
+}
+
+/// `--manoeuvre`: a test day of short runs into the folder `--out`.
+fn run_day(args: &SynthArgs, full_state: bool) -> Result<()> {
+    let seconds = args.seconds.unwrap_or(3.0);
+    if !(seconds.is_finite() && (2.0..=120.0).contains(&seconds)) {
+        bail!("--seconds {seconds} must be in [2, 120] with --manoeuvre");
+    }
+    if !(1..=500).contains(&args.runs) {
+        bail!("--runs {} must be in [1, 500]", args.runs);
+    }
+    if !(args.rate.is_finite() && (5.0..=200.0).contains(&args.rate)) {
+        bail!("--rate {} must be in [5, 200] Hz", args.rate);
+    }
+    if !["rest", "moving", "mixed"].contains(&args.start.as_str()) {
+        bail!("--start {:?}: rest, moving or mixed", args.start);
+    }
+    let manoeuvres: Vec<Manoeuvre> = args
+        .manoeuvre
+        .iter()
+        .map(|m| Manoeuvre::parse(m))
+        .collect::<Result<_>>()?;
+    let nominal = match &args.vehicle {
+        Some(p) => VehicleParams::load(p)?,
+        None => VehicleParams::default(),
+    };
+    let mut truth = nominal.clone();
+    let mut hidden = Vec::new();
+    for spec in &args.effects {
+        let (kind, v) = parse_effect_spec(spec)?;
+        if kind == EffectKind::FrictionPatch && v[1..].iter().any(|x| x.is_nan()) {
+            bail!(
+                "--effect friction_patch needs its region (xmin, ymin, xmax, ymax) with --manoeuvre"
+            );
+        }
+        if hidden.iter().any(|(k, _)| *k == kind) {
+            bail!("--effect {} given twice", kind.name());
+        }
+        kind.apply(&mut truth, &v);
+        hidden.push((kind, v));
+    }
+    truth
+        .validate()
+        .context("the effects give an invalid vehicle")?;
+    let plan = DayPlan {
+        manoeuvres,
+        runs: args.runs,
+        seconds,
+        rate_hz: args.rate,
+        full_state,
+        start: args.start.clone(),
+        seed: args.seed,
+        noise: NOISE,
+        measurement_delay: measurement_delay(&hidden),
+    };
+    let dir = &args.out;
+    let runs = sysid_synth_runs::write_day(&plan, &truth, dir)?;
+    let truth_json = json!({
+        "seed": args.seed,
+        "seconds_per_run": seconds,
+        "rate_hz": args.rate,
+        "channels": args.channels,
+        "runs": runs,
+        "effects": hidden.iter().map(|(k, v)| json!({"name": k.name(), "params": k.params_json(v)})).collect::<Vec<_>>(),
+        "noise_std": {"x": NOISE[0], "y": NOISE[1], "yaw": NOISE[2], "vx": NOISE[3], "vy": NOISE[4], "yaw_rate": NOISE[5]},
+    });
+    let sidecar = dir.join("truth.json");
+    std::fs::write(&sidecar, serde_json::to_string_pretty(&truth_json)?)
+        .with_context(|| format!("writing {}", sidecar.display()))?;
+    println!(
+        "wrote {} runs of {seconds} s into {} (hidden: {}) and {}",
+        args.runs,
+        dir.display(),
         if hidden.is_empty() {
             "nothing".to_string()
         } else {

@@ -245,7 +245,10 @@ fn control_reports_nothing_and_the_fitted_vehicle_loads() {
         .filter(|e| e["significant"] == true)
         .collect();
     assert!(kept.is_empty(), "false positive on the control: {kept:?}");
-    assert_eq!(report["effects"].as_array().unwrap().len(), 8);
+    assert_eq!(
+        report["effects"].as_array().unwrap().len(),
+        paddock_sysid::effects::ALL.len()
+    );
     let md = std::fs::read_to_string(dir.join("out/report.md")).unwrap();
     assert!(md.contains("Nothing significant"), "{md}");
     for plot in [
@@ -379,30 +382,36 @@ fn bad_recordings_get_clear_errors() {
             b"t,steer_cmd,x,y,yaw,vx,vy,yaw_rate\n0,0,0,0,0,0,0,0\n".to_vec(),
             vec!["missing column", "speed_cmd"],
         ),
+        // a bad row is skipped and named; what is left is too short
         (
             "nan.csv",
             format!("{header}{}1.0,0.1,NaN,0,0,0,0,0,0\n", rows(40)).into_bytes(),
-            vec!["row 42", "speed_cmd", "NaN"],
+            vec!["row 42", "speed_cmd", "NaN", "too short"],
         ),
         (
             "text.csv",
             format!("{header}{}1.0,0.1,fast,0,0,0,0,0,0\n", rows(40)).into_bytes(),
-            vec!["row 42", "speed_cmd", "fast"],
+            vec!["row 42", "speed_cmd", "fast", "too short"],
         ),
         (
             "short.csv",
             format!("{header}{}", rows(60)).into_bytes(),
-            vec!["too short", "60 samples"],
+            vec!["too short", "60 samples", "record more"],
         ),
         (
             "backwards.csv",
             format!("{header}{}0.5,0,0,0,0,0,0,0,0\n", rows(40)).into_bytes(),
-            vec!["row 42", "does not increase"],
+            vec!["stray", "too short"],
         ),
         (
             "ragged.csv",
             format!("{header}{}1.0,0.1,2\n", rows(40)).into_bytes(),
-            vec!["row 42", "fields"],
+            vec!["row 42", "fields", "too short"],
+        ),
+        (
+            "all-bad.csv",
+            format!("{header}x,y,z,0,0,0,0,0,0\n").into_bytes(),
+            vec!["no usable rows", "row 2"],
         ),
         ("empty.csv", Vec::new(), vec!["empty"]),
         (
@@ -488,5 +497,236 @@ fn synth_is_deterministic_per_seed() {
     let gaps: Vec<f64> = rec.states.windows(2).map(|w| w[1].t - w[0].t).collect();
     assert!(gaps.iter().any(|g| *g > 0.04), "no dropped row");
     assert!(gaps.iter().any(|g| (*g - 0.025).abs() > 0.002), "no jitter");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Real logs' shape: epoch timestamps, a byte-order mark, NaN and text rows, a ragged last
+/// line, a stray row far in the future and a long gap (two runs) are read, reported and
+/// analysed, not refused (each used to abort, hang or reject the file).
+#[test]
+fn real_logs_shape_is_read_not_refused() {
+    let dir = scratch("shape");
+    let rec = dir.join("rec.csv");
+    let rec_s = rec.to_str().unwrap().to_string();
+    let (ok, _, err) = paddock(&[
+        "sysid",
+        "synth",
+        "--seconds",
+        "12",
+        "--seed",
+        "3",
+        "--effect",
+        "steering_offset:offset_rad=0.03",
+        "--out",
+        &rec_s,
+    ]);
+    assert!(ok, "{err}");
+    let text = std::fs::read_to_string(&rec).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let epoch = 1_732_000_000.0;
+    for (i, l) in lines.iter_mut().enumerate().skip(1) {
+        let (t, rest) = l.split_once(',').unwrap();
+        let mut t: f64 = t.parse().unwrap();
+        if t > 6.0 {
+            t += 4.0; // a 4 s gap: a second run
+        }
+        *l = format!("{:.4},{rest}", epoch + t);
+        if i == 100 {
+            l.push_str("\n1732100000.0,0,0,0,0,0,0,0,0");
+            l.push_str(&format!(
+                "\n{:.4},NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN",
+                epoch + t + 0.001
+            ));
+            l.push_str(&format!("\n{:.4},0.1,fast,0,0,0,0,0,0", epoch + t + 0.002));
+        }
+    }
+    let messy = format!("\u{feff}{}\n1732000099.0,0.1,2\n", lines.join("\n"));
+    std::fs::write(&rec, messy).unwrap();
+    let out = dir.join("out");
+    let out_s = out.to_str().unwrap();
+    let (ok, stdout, err) = paddock(&[
+        "sysid",
+        "--recording",
+        &rec_s,
+        "--out",
+        out_s,
+        "--effects",
+        "steering_offset",
+        "--no-plots",
+        "--threads",
+        "2",
+    ]);
+    assert!(ok, "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(stdout.contains("steering_offset"), "{stdout}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let warnings = report["recording"]["warnings"].to_string();
+    for needle in ["stray", "rows skipped", "fast", "split into 2 runs"] {
+        assert!(warnings.contains(needle), "{needle}: {warnings}");
+    }
+    let runs = report["recording"]["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{runs:?}");
+    assert_eq!(runs[0]["t_offset"].as_f64().unwrap(), epoch);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A test day of short runs (3 s steps, arcs and speed steps, half starting in motion),
+/// with only the pose and the VESC speed at 30 Hz: a steering calibration error is found
+/// jointly over all runs, whole runs are held out, the interval covers the truth, and the
+/// report gives the corrected VESC values.
+#[test]
+fn many_short_pose_and_speed_runs_find_a_steering_gain() {
+    let dir = scratch("day");
+    let day = dir.join("day");
+    let day_s = day.to_str().unwrap().to_string();
+    let (ok, stdout, err) = paddock(&[
+        "sysid",
+        "synth",
+        "--manoeuvre",
+        "step,arc,speed-step",
+        "--runs",
+        "12",
+        "--rate",
+        "30",
+        "--channels",
+        "pose+speed",
+        "--effect",
+        "steering_gain:gain=0.8",
+        "--seed",
+        "11",
+        "--out",
+        &day_s,
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("12 runs"), "{stdout}");
+    let first = std::fs::read_to_string(day.join("run-01.csv")).unwrap();
+    assert!(
+        first.starts_with("t,steer_cmd,speed_cmd,x,y,yaw,vx\n"),
+        "{first}"
+    );
+    let vesc = dir.join("vesc.yaml");
+    std::fs::write(
+        &vesc,
+        "/**:\n  ros__parameters:\n    speed_to_erpm_gain: 4614.0\n    speed_to_erpm_offset: 0.0\n    steering_angle_to_servo_gain: -1.2135\n    steering_angle_to_servo_offset: 0.5304\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let out_s = out.to_str().unwrap();
+    let (ok, _, err) = paddock(&[
+        "sysid",
+        "--recording",
+        &day_s,
+        "--out",
+        out_s,
+        "--effects",
+        "steering_gain,steering_offset,steering_delay,speed_gain",
+        "--vesc-config",
+        vesc.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["recording"]["runs"].as_array().unwrap().len(), 12);
+    assert_eq!(
+        report["recording"]["channels_missing"],
+        serde_json::json!(["vy", "yaw_rate"])
+    );
+    assert!(
+        report["fit"]["heldout"]
+            .as_str()
+            .unwrap()
+            .contains("whole runs")
+    );
+    let kept: Vec<&Value> = report["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["significant"] == true)
+        .collect();
+    assert_eq!(kept.len(), 1, "{report:#}");
+    assert_eq!(kept[0]["name"], "steering_gain");
+    let g = kept[0]["params"]["gain"].as_f64().unwrap();
+    assert!((g - 0.8).abs() <= 0.3 * 0.2, "gain {g}");
+    let iv = &kept[0]["interval"]["gain"];
+    let (lo, hi) = (iv[0].as_f64().unwrap(), iv[1].as_f64().unwrap());
+    assert!(
+        lo <= 0.8 && 0.8 <= hi && hi - lo < 0.2,
+        "interval [{lo}, {hi}]"
+    );
+    let servo = report["vesc"]["steering_angle_to_servo_gain"]["new"]
+        .as_f64()
+        .unwrap();
+    assert!((servo - (-1.2135 / g)).abs() < 1e-3, "{servo}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "12 runs",
+        "wheels turn",
+        "steering_angle_to_servo_gain",
+        "Not measured: vy, yaw_rate",
+        "could be anywhere",
+    ] {
+        assert!(md.contains(needle), "{needle}:\n{md}");
+    }
+    for plot in [
+        "timeseries.png",
+        "residual_by_place.png",
+        "residual_by_regime.png",
+    ] {
+        assert!(out.join(plot).exists(), "{plot}");
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Play in the steering linkage, found from steering steps and their reversals.
+#[test]
+fn steering_backlash_on_a_test_day() {
+    let dir = scratch("backlash");
+    let day = dir.join("day");
+    let day_s = day.to_str().unwrap().to_string();
+    let (ok, _, err) = paddock(&[
+        "sysid",
+        "synth",
+        "--manoeuvre",
+        "step",
+        "--runs",
+        "8",
+        "--effect",
+        "steering_backlash:width_rad=0.06",
+        "--seed",
+        "12",
+        "--out",
+        &day_s,
+    ]);
+    assert!(ok, "{err}");
+    let out = dir.join("out");
+    let out_s = out.to_str().unwrap();
+    let (ok, _, err) = paddock(&[
+        "sysid",
+        "--recording",
+        &day_s,
+        "--out",
+        out_s,
+        "--effects",
+        "steering_backlash,steering_gain,steering_lag",
+        "--no-plots",
+    ]);
+    assert!(ok, "{err}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let kept: Vec<&Value> = report["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["significant"] == true)
+        .collect();
+    assert!(
+        !kept.is_empty() && kept[0]["name"] == "steering_backlash",
+        "{report:#}"
+    );
+    let w = kept[0]["params"]["width_rad"].as_f64().unwrap();
+    assert!((w - 0.06).abs() <= 0.3 * 0.06, "width {w}");
+    let v = VehicleParams::load(out.join("vehicle.yaml")).unwrap();
+    assert!(v.effects.steering_backlash.is_some());
     let _ = std::fs::remove_dir_all(dir);
 }

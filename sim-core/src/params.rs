@@ -18,11 +18,17 @@
 //!   drag: { c_lin: 0.1, c_quad: 0.02 }
 //!   friction_patch: [ { mu: 0.6, region: [0.0, -1.0, 5.0, 1.0] } ]
 //!   tire_saturation: { D: 1.0, C: 1.3, E: 0.0 }
+//!   steering_gain: { gain: 0.9 }
+//!   speed_gain: { gain: 1.05 }
+//!   steering_backlash: { width_rad: 0.03 }
 //! ```
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+
+mod calibration;
+pub use calibration::{SpeedGain, SteeringBacklash, SteeringGain};
 
 /// Gravitational acceleration used by the reference model [m/s^2].
 pub const GRAVITY: f64 = 9.81;
@@ -115,12 +121,14 @@ impl FrictionPatch {
 }
 
 /// Pacejka "magic formula" lateral tire, per axle:
-/// `Fy = Fz D sin(C atan(B a - E (B a - atan(B a))))`, with `B` chosen so the slope at
-/// zero slip equals the nominal linear tire (`B = mu C_S / (C D)`).
+/// `Fy = mu Fz D sin(C atan(B a - E (B a - atan(B a))))`, with `B = C_S / (C D)` so the
+/// slope at zero slip equals the linear tire's `mu C_S`. `mu` scales the whole force, peak
+/// and slope, as it scales the linear tire (a friction patch or a fitted `friction` lowers
+/// both).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TireSaturation {
-    /// Peak factor: peak lateral force / normal load at the nominal `mu`.
+    /// Peak factor per unit of `mu`: the peak lateral force / normal load is `mu D`.
     #[serde(rename = "D")]
     pub d: f64,
     /// Shape factor.
@@ -150,6 +158,12 @@ pub struct Effects {
     pub friction_patch: Option<Vec<FrictionPatch>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tire_saturation: Option<TireSaturation>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steering_gain: Option<SteeringGain>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub speed_gain: Option<SpeedGain>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steering_backlash: Option<SteeringBacklash>,
 }
 
 impl Effects {
@@ -440,7 +454,11 @@ impl Effects {
             check("effects.tire_saturation.C", t.c, t.c > 0.0, "> 0")?;
             check("effects.tire_saturation.E", t.e, t.e <= 1.0, "<= 1")?;
         }
-        Ok(())
+        calibration::validate(
+            self.steering_gain.as_ref(),
+            self.speed_gain.as_ref(),
+            self.steering_backlash.as_ref(),
+        )
     }
 }
 
@@ -507,6 +525,9 @@ mod tests {
                 c: 1.3,
                 e: -0.5,
             }),
+            steering_gain: Some(SteeringGain { gain: 0.9 }),
+            speed_gain: Some(SpeedGain { gain: 1.05 }),
+            steering_backlash: Some(SteeringBacklash { width_rad: 0.03 }),
         };
         let text = p.to_yaml_string();
         assert!(text.contains("C_Sf:"), "{text}");

@@ -9,10 +9,13 @@ use tracing::info;
 
 use crate::SysidError;
 use crate::effects::{ALL, EffectKind};
-use crate::fit::{Evidence, FitContext, Fitted, budget, build_params};
+use crate::fit::{Evidence, FitContext, Fitted, budget, build_params, measurement_delay};
 use crate::locate::{Located, locate};
 use crate::recording::Recording;
 use crate::replay::{Replay, Residuals};
+
+/// A held-out block's RMSE, its sample count and the fit made without it.
+type FoldResult = ([f64; 6], usize, Vec<Fitted>);
 
 /// Knobs of the analysis.
 #[derive(Debug, Clone)]
@@ -90,6 +93,13 @@ pub struct CandidateResult {
     pub selected: bool,
     /// Final parameters (after the joint refit) when selected.
     pub values: Vec<f64>,
+    /// Selected: per parameter, the range of the refits with each block (or group of
+    /// runs) held out, widened to two jackknife standard errors.
+    pub interval: Option<Vec<[f64; 2]>>,
+    /// Not selected (one-parameter effects): the range of the parameter these data cannot
+    /// tell from "off" (adding it to the final model changes the fit by less than the
+    /// margin an effect must beat).
+    pub could_be: Option<[f64; 2]>,
 }
 
 /// Everything an analysis produced.
@@ -110,6 +120,11 @@ pub struct Analysis {
     pub noise_floor: [f64; 6],
     pub folds: usize,
     pub window_s: f64,
+    /// Whether whole runs were held out (several runs) or time blocks (one).
+    pub heldout_runs: bool,
+    pub excitation: crate::explain::Excitation,
+    /// Effects these data cannot identify, with what to drive.
+    pub not_identifiable: Vec<(EffectKind, String)>,
     pub seconds: f64,
 }
 
@@ -125,12 +140,21 @@ pub fn analyze(
     rec.check()?;
     nominal.validate()?;
     let replay = Replay::new(rec, opts.window_s);
-    if replay.n_windows() < 2 * opts.folds {
+    // several runs: whole runs are held out; one: contiguous time blocks
+    let n_runs = replay.n_runs();
+    let folds = if n_runs >= 2 {
+        opts.folds.min(n_runs)
+    } else {
+        opts.folds
+    };
+    if replay.n_windows() < 2 * folds {
         return Err(SysidError::TooShort {
             samples: rec.states.len(),
-            duration_s: rec.duration(),
+            duration_s: rec.total_duration(),
+            runs: n_runs,
             min_samples: crate::recording::MIN_SAMPLES,
-            min_duration_s: 2.0 * opts.folds as f64 * opts.window_s,
+            min_duration_s: 2.0 * folds as f64 * opts.window_s,
+            hint: crate::recording::SHORT_HINT.into(),
         });
     }
     let cands: Vec<EffectKind> = opts.candidates.clone();
@@ -171,8 +195,16 @@ pub fn analyze(
     let ctx = FitContext {
         replay: &replay,
         nominal,
-        fold_of_window: (0..n_w).map(|w| w * opts.folds / n_w).collect(),
-        folds: opts.folds,
+        fold_of_window: (0..n_w)
+            .map(|w| {
+                if n_runs >= 2 {
+                    replay.window_run(w) % folds
+                } else {
+                    w * folds / n_w
+                }
+            })
+            .collect(),
+        folds,
         extent,
         patch_seeds: located.patch_seeds.clone(),
         seed: opts.seed,
@@ -182,8 +214,7 @@ pub fn analyze(
     let mut chosen: Vec<Fitted> = Vec::new();
     let mut results: BTreeMap<EffectKind, CandidateResult> = BTreeMap::new();
     for round in 1..=rounds {
-        let base_params = build_params(nominal, &chosen);
-        let base_heldout = ctx.fold_costs(&base_params);
+        let base_heldout = ctx.fold_costs(&chosen);
         let remaining: Vec<EffectKind> = cands
             .iter()
             .copied()
@@ -218,6 +249,8 @@ pub fn analyze(
                     evidence: e,
                     round,
                     selected: false,
+                    interval: None,
+                    could_be: None,
                 },
             );
         }
@@ -260,25 +293,28 @@ pub fn analyze(
 
     // held-out residuals of the final model: each block predicted by a fit without it
     let rmse_before = nominal_residuals.rmse(|_| true);
+    let mut fold_fits: Vec<Vec<Fitted>> = Vec::new();
     let rmse_after = if chosen.is_empty() {
         rmse_before
     } else {
         let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum::<u64>() / 2;
-        let per_fold: Vec<Result<([f64; 6], usize), SysidError>> = (0..opts.folds)
+        let per_fold: Vec<Result<FoldResult, SysidError>> = (0..folds)
             .into_par_iter()
             .map(|f| {
                 let fold_of = &ctx.fold_of_window;
                 let (fit, _) = ctx.fit(&[], &chosen, &|w| fold_of[w] != f, evals)?;
-                let res = replay.residuals(&build_params(nominal, &fit));
+                let res =
+                    replay.residuals_at(&build_params(nominal, &fit), measurement_delay(&fit));
                 let n = res.window.iter().filter(|w| fold_of[**w] == f).count();
                 let r = res.rmse(|w| fold_of[w] == f);
-                Ok((r, n))
+                Ok((r, n, fit))
             })
             .collect();
         let mut sq = [0.0; 6];
         let mut n_all = 0usize;
         for r in per_fold {
-            let (r, n) = r?;
+            let (r, n, fit) = r?;
+            fold_fits.push(fit);
             for c in 0..6 {
                 sq[c] += r[c] * r[c] * n as f64;
             }
@@ -289,9 +325,35 @@ pub fn analyze(
     tick(&mut done, "measured the held-out fit".into());
     let fitted = build_params(nominal, &chosen);
     fitted.validate()?;
-    let fitted_residuals = replay.residuals(&fitted);
+    let fitted_residuals = replay.residuals_at(&fitted, measurement_delay(&chosen));
     let rmse_fitted_in_sample = fitted_residuals.rmse(|_| true);
     let located_fitted = locate(rec, &replay, &fitted_residuals);
+    for c in &chosen {
+        if let Some(r) = results.get_mut(&c.kind) {
+            r.interval = Some(interval(c, &fold_fits));
+        }
+    }
+    let final_cost = ctx.cost(&chosen, &|_| true);
+    let bounds: Vec<(EffectKind, Option<[f64; 2]>)> = results
+        .values()
+        .filter(|r| !r.selected)
+        .map(|r| r.evidence.kind)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|k| {
+            (
+                k,
+                could_be(&ctx, &chosen, k, final_cost * (1.0 + opts.margin_per_param)),
+            )
+        })
+        .collect();
+    for (k, b) in bounds {
+        if let Some(r) = results.get_mut(&k) {
+            r.could_be = b;
+        }
+    }
+    let excitation = crate::explain::excitation(rec);
+    let not_identifiable = crate::explain::not_identifiable(&excitation, nominal.mu);
     let mut candidates: Vec<CandidateResult> = results.into_values().collect();
     candidates.sort_by_key(|c| (!c.selected, c.evidence.kind));
     Ok(Analysis {
@@ -307,8 +369,11 @@ pub fn analyze(
         rmse_after,
         rmse_fitted_in_sample,
         noise_floor: replay.sigma,
-        folds: opts.folds,
+        folds,
         window_s: replay.window_s,
+        heldout_runs: n_runs >= 2,
+        excitation,
+        not_identifiable,
         seconds: start.elapsed().as_secs_f64(),
     })
 }
@@ -332,4 +397,74 @@ fn tighten_patch(rec: &Recording, v: &mut [f64]) {
     v[2] = (b[1] - MARGIN_M).max(ymin);
     v[3] = (b[2] + MARGIN_M).min(xmax);
     v[4] = (b[3] + MARGIN_M).min(ymax);
+}
+
+/// Per parameter of `c`: its range over the held-out refits, widened to two jackknife
+/// standard errors around the final value (a delay: at least half a step).
+fn interval(c: &Fitted, fold_fits: &[Vec<Fitted>]) -> Vec<[f64; 2]> {
+    let bounds = c.kind.bounds();
+    (0..c.values.len())
+        .map(|i| {
+            let v = c.values[i];
+            let xs: Vec<f64> = fold_fits
+                .iter()
+                .filter_map(|f| f.iter().find(|e| e.kind == c.kind).map(|e| e.values[i]))
+                .collect();
+            let n = xs.len() as f64;
+            let mut half = 0.0;
+            if n >= 2.0 {
+                let mean = xs.iter().sum::<f64>() / n;
+                let jack =
+                    ((n - 1.0) / n * xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>()).sqrt();
+                half = 2.0 * jack;
+            }
+            if c.kind == EffectKind::SteeringDelay {
+                half = half.max(0.5 * crate::replay::DT);
+            }
+            let lo = xs.iter().copied().fold(v - half, f64::min);
+            let hi = xs.iter().copied().fold(v + half, f64::max);
+            match bounds.get(i) {
+                Some(&(blo, bhi)) => [lo.max(blo), hi.min(bhi)],
+                None => [lo, hi],
+            }
+        })
+        .collect()
+}
+
+/// The parameter value that switches a one-parameter effect off.
+fn off_value(kind: EffectKind, nominal_mu: f64) -> Option<f64> {
+    Some(match kind {
+        EffectKind::SteeringDelay
+        | EffectKind::SteeringLag
+        | EffectKind::SteeringOffset
+        | EffectKind::SteeringBacklash
+        | EffectKind::DriveLag
+        | EffectKind::MeasurementDelay => 0.0,
+        EffectKind::SteeringGain | EffectKind::SpeedGain => 1.0,
+        EffectKind::Friction => nominal_mu,
+        _ => return None,
+    })
+}
+
+/// For an effect not kept: how far from "off" its parameter can go, on each side, before
+/// adding it to the final model costs more than `limit` (the cost the margin allows).
+fn could_be(ctx: &FitContext, chosen: &[Fitted], kind: EffectKind, limit: f64) -> Option<[f64; 2]> {
+    let off = off_value(kind, ctx.nominal.mu)?;
+    let (lo, hi) = kind.bounds()[0];
+    const STEPS: usize = 12;
+    let side = |end: f64| -> f64 {
+        let mut last_ok = off;
+        for i in 1..=STEPS {
+            let v = off + (end - off) * i as f64 / STEPS as f64;
+            let mut fx = chosen.to_vec();
+            fx.push(Fitted::new(kind, vec![v]));
+            if ctx.cost(&fx, &|_| true) > limit {
+                // between the last value passed and this one
+                return 0.5 * (last_ok + v);
+            }
+            last_ok = v;
+        }
+        end
+    };
+    Some([side(lo.min(off)), side(hi.max(off))])
 }

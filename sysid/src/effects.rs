@@ -3,8 +3,8 @@
 //! is written into [`VehicleParams`].
 
 use paddock_sim::params::{
-    Drag, FirstOrderLag, FrictionPatch, SteeringDelay, SteeringOffset, TireSaturation,
-    VehicleParams,
+    Drag, FirstOrderLag, FrictionPatch, SpeedGain, SteeringBacklash, SteeringDelay, SteeringGain,
+    SteeringOffset, TireSaturation, VehicleParams,
 };
 use serde_json::{Value, json};
 
@@ -21,18 +21,28 @@ pub enum EffectKind {
     Friction,
     FrictionPatch,
     TireSaturation,
+    SteeringGain,
+    SteeringBacklash,
+    SpeedGain,
+    /// Latency of the pose source: every measured state lags the truth. A property of
+    /// the sensors, not of the car: it is reported, not written into the vehicle.
+    MeasurementDelay,
 }
 
 /// Every candidate, in report order.
-pub const ALL: [EffectKind; 8] = [
+pub const ALL: [EffectKind; 12] = [
     EffectKind::SteeringDelay,
     EffectKind::SteeringLag,
     EffectKind::SteeringOffset,
+    EffectKind::SteeringGain,
+    EffectKind::SteeringBacklash,
     EffectKind::DriveLag,
+    EffectKind::SpeedGain,
     EffectKind::Drag,
     EffectKind::Friction,
     EffectKind::FrictionPatch,
     EffectKind::TireSaturation,
+    EffectKind::MeasurementDelay,
 ];
 
 impl EffectKind {
@@ -46,6 +56,10 @@ impl EffectKind {
             EffectKind::Friction => "friction",
             EffectKind::FrictionPatch => "friction_patch",
             EffectKind::TireSaturation => "tire_saturation",
+            EffectKind::SteeringGain => "steering_gain",
+            EffectKind::SteeringBacklash => "steering_backlash",
+            EffectKind::SpeedGain => "speed_gain",
+            EffectKind::MeasurementDelay => "measurement_delay",
         }
     }
 
@@ -65,7 +79,9 @@ impl EffectKind {
     /// Parameter names of the vector form (`friction_patch`: mu, then the region).
     pub fn param_names(self) -> &'static [&'static str] {
         match self {
-            EffectKind::SteeringDelay => &["delay_s"],
+            EffectKind::SteeringDelay | EffectKind::MeasurementDelay => &["delay_s"],
+            EffectKind::SteeringGain | EffectKind::SpeedGain => &["gain"],
+            EffectKind::SteeringBacklash => &["width_rad"],
             EffectKind::SteeringLag | EffectKind::DriveLag => &["tau_s"],
             EffectKind::SteeringOffset => &["offset_rad"],
             EffectKind::Drag => &["c_lin", "c_quad"],
@@ -91,6 +107,9 @@ impl EffectKind {
             EffectKind::Friction => vec![(0.2, 2.0)],
             EffectKind::FrictionPatch => vec![(0.15, 2.0)],
             EffectKind::TireSaturation => vec![(0.2, 1.6), (0.9, 2.2), (-1.5, 0.9)],
+            EffectKind::SteeringGain | EffectKind::SpeedGain => vec![(0.6, 1.4)],
+            EffectKind::SteeringBacklash => vec![(0.0, 0.15)],
+            EffectKind::MeasurementDelay => vec![(0.0, 0.25)],
         }
     }
 
@@ -104,6 +123,9 @@ impl EffectKind {
             EffectKind::Drag => vec![0.05, 0.01],
             EffectKind::Friction | EffectKind::FrictionPatch => vec![nominal.mu],
             EffectKind::TireSaturation => vec![1.0, 1.5, 0.0],
+            EffectKind::SteeringGain | EffectKind::SpeedGain => vec![1.0],
+            EffectKind::SteeringBacklash => vec![0.005],
+            EffectKind::MeasurementDelay => vec![0.005],
         }
     }
 
@@ -118,10 +140,35 @@ impl EffectKind {
             EffectKind::Friction => vec![0.7],
             EffectKind::FrictionPatch => vec![0.55, f64::NAN, f64::NAN, f64::NAN, f64::NAN],
             EffectKind::TireSaturation => vec![0.6, 1.6, 0.3],
+            EffectKind::SteeringGain => vec![0.85],
+            EffectKind::SteeringBacklash => vec![0.04],
+            EffectKind::SpeedGain => vec![1.1],
+            EffectKind::MeasurementDelay => vec![0.05],
         }
     }
 
-    /// Write the effect with parameter vector `v` into `p` (friction: the model's `mu`).
+    /// Whether a fitted value is too small for the car to feel (a tenth of a degree, 1 %,
+    /// 5 ms): such a fit is not a finding, however it scores.
+    pub fn negligible(self, v: &[f64]) -> bool {
+        match self {
+            EffectKind::SteeringGain | EffectKind::SpeedGain => (v[0] - 1.0).abs() < 0.01,
+            EffectKind::SteeringBacklash => v[0] < 0.005,
+            EffectKind::SteeringOffset => v[0].abs() < 0.002,
+            EffectKind::SteeringDelay | EffectKind::SteeringLag | EffectKind::MeasurementDelay => {
+                v[0] < 0.005
+            }
+            EffectKind::DriveLag => v[0] < 0.01,
+            _ => false,
+        }
+    }
+
+    /// Whether the effect lives in the vehicle (sim-core) rather than in the sensors.
+    pub fn in_vehicle(self) -> bool {
+        self != EffectKind::MeasurementDelay
+    }
+
+    /// Write the effect with parameter vector `v` into `p` (friction: the model's `mu`;
+    /// `measurement_delay` is not the vehicle's and writes nothing).
     pub fn apply(self, p: &mut VehicleParams, v: &[f64]) {
         let fx = &mut p.effects;
         match self {
@@ -151,6 +198,12 @@ impl EffectKind {
                     e: v[2],
                 })
             }
+            EffectKind::SteeringGain => fx.steering_gain = Some(SteeringGain { gain: v[0] }),
+            EffectKind::SpeedGain => fx.speed_gain = Some(SpeedGain { gain: v[0] }),
+            EffectKind::SteeringBacklash => {
+                fx.steering_backlash = Some(SteeringBacklash { width_rad: v[0] })
+            }
+            EffectKind::MeasurementDelay => {}
         }
     }
 
@@ -228,7 +281,7 @@ mod tests {
             }
             k.apply(&mut p, &v);
             p.validate().unwrap();
-            assert_ne!(p, nominal, "{}", k.name());
+            assert_eq!(p != nominal, k.in_vehicle(), "{}", k.name());
             assert_eq!(k.bounds().len(), k.start(&nominal).len());
         }
         assert!(EffectKind::from_name("wind").is_err());

@@ -43,6 +43,14 @@ pub fn build_params(nominal: &VehicleParams, effects: &[Fitted]) -> VehicleParam
     p
 }
 
+/// The measurement delay among `effects` (0 without one).
+pub fn measurement_delay(effects: &[Fitted]) -> f64 {
+    effects
+        .iter()
+        .find(|e| e.kind == EffectKind::MeasurementDelay)
+        .map_or(0.0, |e| e.values[0])
+}
+
 /// What the fit works with.
 pub struct FitContext<'a> {
     pub replay: &'a Replay,
@@ -80,10 +88,11 @@ pub struct Evidence {
 }
 
 impl FitContext<'_> {
-    /// Sum of window costs over the windows `keep` accepts.
-    pub fn cost(&self, p: &VehicleParams, keep: &dyn Fn(usize) -> bool) -> f64 {
+    /// Sum of window costs of the model with `effects` over the windows `keep` accepts.
+    pub fn cost(&self, effects: &[Fitted], keep: &dyn Fn(usize) -> bool) -> f64 {
+        let p = build_params(self.nominal, effects);
         self.replay
-            .window_costs(p)
+            .window_costs_at(&p, measurement_delay(effects))
             .iter()
             .enumerate()
             .filter(|(w, _)| keep(*w))
@@ -91,10 +100,25 @@ impl FitContext<'_> {
             .sum()
     }
 
-    /// Cost per fold.
-    pub fn fold_costs(&self, p: &VehicleParams) -> Vec<f64> {
+    /// Measured values (samples x channels measured) per fold.
+    pub fn fold_counts(&self) -> Vec<usize> {
+        let mut out = vec![0usize; self.folds];
+        for (w, n) in self.replay.window_counts().into_iter().enumerate() {
+            out[self.fold_of_window[w]] += n;
+        }
+        out
+    }
+
+    /// Cost per fold of the model with `effects`.
+    pub fn fold_costs(&self, effects: &[Fitted]) -> Vec<f64> {
+        let p = build_params(self.nominal, effects);
         let mut out = vec![0.0; self.folds];
-        for (w, c) in self.replay.window_costs(p).into_iter().enumerate() {
+        for (w, c) in self
+            .replay
+            .window_costs_at(&p, measurement_delay(effects))
+            .into_iter()
+            .enumerate()
+        {
             out[self.fold_of_window[w]] += c;
         }
         out
@@ -154,8 +178,7 @@ impl FitContext<'_> {
         let objective = |x: &[f64]| -> f64 {
             let mut all = base.to_vec();
             all.extend(make(x));
-            let p = build_params(self.nominal, &all);
-            self.cost(&p, keep)
+            self.cost(&all, keep)
         };
         // the steering delay alone: whole steps, searched exhaustively
         if free.len() == 1 && free[0].kind == EffectKind::SteeringDelay {
@@ -171,7 +194,7 @@ impl FitContext<'_> {
                     let d = n as f64 * DT;
                     let mut all = base.to_vec();
                     all.push(with_delay(d));
-                    (d, self.cost(&build_params(self.nominal, &all), keep))
+                    (d, self.cost(&all, keep))
                 })
                 .collect();
             let best = costs
@@ -245,7 +268,7 @@ impl FitContext<'_> {
                         let mu = lo + (hi - lo) * (i as f64 + 0.5) / 8.0;
                         let mut all_fx = base.to_vec();
                         all_fx.push(fixed_box(mu));
-                        (mu, self.cost(&build_params(self.nominal, &all_fx), &all))
+                        (mu, self.cost(&all_fx, &all))
                     })
                     .collect();
                 grid.sort_by(|a, b| a.1.total_cmp(&b.1));
@@ -293,8 +316,7 @@ impl FitContext<'_> {
             let (fold_fit, _) = self.fit(base, &all_fit, &train, budget / 2)?;
             let mut fx = base.to_vec();
             fx.extend(fold_fit);
-            let p = build_params(self.nominal, &fx);
-            with.push(self.cost(&p, &|w| self.fold_of_window[w] == f));
+            with.push(self.cost(&fx, &|w| self.fold_of_window[w] == f));
         }
         let sb: f64 = base_heldout.iter().sum();
         let sw: f64 = with.iter().sum();
@@ -302,10 +324,17 @@ impl FitContext<'_> {
         let folds_improved = with.iter().zip(base_heldout).filter(|(w, b)| w < b).count();
         // a block the effect cannot touch (a friction patch the car never reached in it)
         // scores the same with and without: it neither supports nor refutes
+        // a block is worse only beyond the noise of its cost: a sum of n squared
+        // noise-normalised residuals wanders by about sqrt(2 n) with noise alone
+        let counts = self.fold_counts();
         let folds_worse = with
             .iter()
             .zip(base_heldout)
-            .filter(|(w, b)| **w > **b * (1.0 + WORSE_TOLERANCE))
+            .zip(&counts)
+            .filter(|((w, b), n)| {
+                let noise = WORSE_NOISE_SIGMAS * (2.0 * **n as f64).sqrt();
+                **w > **b * (1.0 + WORSE_TOLERANCE) + noise
+            })
             .count();
         let margin = margin_per_param * evidence_params(kind) as f64;
         Ok(Evidence {
@@ -319,14 +348,17 @@ impl FitContext<'_> {
             folds_worse,
             margin,
             significant: gain > margin
+                && !kind.negligible(&all_fit[0].values)
                 && folds_worse == 0
                 && folds_improved >= MIN_FOLDS_IMPROVED.min(self.folds),
         })
     }
 }
 
-/// Relative increase of a block's held-out cost that counts as "worse".
+/// Relative increase of a block's held-out cost that counts as "worse" (on top of the
+/// noise of the cost, [`WORSE_NOISE_SIGMAS`] standard deviations).
 const WORSE_TOLERANCE: f64 = 1e-3;
+const WORSE_NOISE_SIGMAS: f64 = 2.0;
 /// Blocks that must improve: the finding must replicate in separate stretches of time.
 const MIN_FOLDS_IMPROVED: usize = 2;
 

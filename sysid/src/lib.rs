@@ -31,6 +31,7 @@
 
 pub mod analysis;
 pub mod effects;
+pub mod explain;
 pub mod fit;
 pub mod locate;
 pub mod recording;
@@ -40,6 +41,18 @@ pub mod report;
 pub use analysis::{Analysis, AnalysisOptions, Stage, analyze};
 pub use effects::EffectKind;
 pub use recording::{McapTopics, Recording};
+
+/// Run the analyses of this process on `n` worker threads (call once, before the first).
+pub fn set_threads(n: usize) -> Result<(), SysidError> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build_global()
+        .map_err(|e| SysidError::Option {
+            field: "threads".into(),
+            value: n.to_string(),
+            requirement: format!("the thread pool could not start: {e}"),
+        })
+}
 
 /// Why an analysis could not run.
 #[derive(Debug, thiserror::Error)]
@@ -57,13 +70,15 @@ pub enum SysidError {
     #[error("{message}")]
     Format { message: String },
     #[error(
-        "recording too short to say anything: {samples} samples over {duration_s:.2} s (need at least {min_samples} samples and {min_duration_s} s)"
+        "recording too short to say anything: {samples} samples over {duration_s:.2} s in {runs} run(s) (need at least {min_samples} samples and {min_duration_s} s in all, each run at least 2 s); {hint}"
     )]
     TooShort {
         samples: usize,
         duration_s: f64,
+        runs: usize,
         min_samples: usize,
         min_duration_s: f64,
+        hint: String,
     },
     #[error("invalid option {field} = {value}: {requirement}")]
     Option {

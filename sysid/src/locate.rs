@@ -68,7 +68,7 @@ fn round(v: f64) -> f64 {
     if v.is_finite() {
         (v * 1e4).round() / 1e4
     } else {
-        -1.0
+        f64::NAN
     }
 }
 
@@ -88,6 +88,8 @@ struct Accum {
     n: usize,
     score: f64,
     sq: [f64; 6],
+    /// Samples where each channel was measured.
+    nc: [usize; 6],
 }
 
 impl Accum {
@@ -96,13 +98,17 @@ impl Accum {
             n: 0,
             score: 0.0,
             sq: [0.0; 6],
+            nc: [0; 6],
         }
     }
     fn add(&mut self, s: f64, r: &[f64; 6]) {
         self.n += 1;
         self.score += s;
-        for (sq, v) in self.sq.iter_mut().zip(r) {
-            *sq += v * v;
+        for (c, v) in r.iter().enumerate() {
+            if v.is_finite() {
+                self.sq[c] += v * v;
+                self.nc[c] += 1;
+            }
         }
     }
     fn group(
@@ -122,7 +128,13 @@ impl Accum {
             score: self.score / n,
             ratio: self.score / n / mean.max(1e-12),
             share: self.score / total.max(1e-12),
-            rmse: std::array::from_fn(|c| (self.sq[c] / n).sqrt()),
+            rmse: std::array::from_fn(|c| {
+                if self.nc[c] == 0 {
+                    f64::NAN
+                } else {
+                    (self.sq[c] / self.nc[c] as f64).sqrt()
+                }
+            }),
         }
     }
 }
@@ -147,10 +159,15 @@ const REGIMES: [(&str, &[f64]); 4] = [
 /// Group the nominal residuals.
 pub fn locate(rec: &Recording, replay: &Replay, res: &Residuals) -> Located {
     let sig = replay.sigma;
+    // mean over the channels measured at the sample
     let score: Vec<f64> = res
         .values
         .iter()
-        .map(|r| (0..6).map(|c| (r[c] / sig[c]).powi(2)).sum::<f64>() / 6.0)
+        .map(|r| {
+            let measured = (0..6).filter(|&c| r[c].is_finite());
+            let n = measured.clone().count().max(1) as f64;
+            measured.map(|c| (r[c] / sig[c]).powi(2)).sum::<f64>() / n
+        })
         .collect();
     let total: f64 = score.iter().sum();
     let mean = total / score.len().max(1) as f64;
@@ -180,19 +197,18 @@ pub fn locate(rec: &Recording, replay: &Replay, res: &Residuals) -> Located {
 
     for (i, r) in res.values.iter().enumerate() {
         let s = &rec.states[res.state[i]];
+        // velocities not measured: the simulated ones
+        let sim = &res.simulated[i];
+        let pick = |m: f64, c: usize| if m.is_finite() { m } else { sim[c] };
+        let (vx, vy, yaw_rate) = (pick(s.vx, 3), pick(s.vy, 4), pick(s.yaw_rate, 5));
         let sc = score[i];
         let ti = ((s.t / seg) as usize).min(n_seg - 1);
         time_acc[ti].add(sc, r);
-        let speed = libm::hypot(s.vx, s.vy);
+        let speed = libm::hypot(vx, vy);
         let t_cmd = s.t;
         let k = ((t_cmd / DT) as usize).min(cmds.len() - 1);
-        let braking = if cmds[k].1 < s.vx - 0.3 { 1.0 } else { 0.0 };
-        let vals = [
-            speed,
-            (speed * s.yaw_rate).abs(),
-            steer_rate(t_cmd),
-            braking,
-        ];
+        let braking = if cmds[k].1 < vx - 0.3 { 1.0 } else { 0.0 };
+        let vals = [speed, (speed * yaw_rate).abs(), steer_rate(t_cmd), braking];
         for (q, (_, edges)) in REGIMES.iter().enumerate() {
             if let Some(b) = edges
                 .windows(2)

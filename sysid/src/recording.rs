@@ -11,7 +11,11 @@ use std::path::Path;
 
 use crate::SysidError;
 
-/// Columns a CSV recording must have (any order; extra columns are ignored).
+pub mod clean;
+pub mod csv;
+
+/// Columns of a CSV recording (any order; extra columns are ignored). The first six are
+/// required; `vx`, `vy` and `yaw_rate` may be absent or empty (not measured).
 pub const CSV_COLUMNS: [&str; 9] = [
     "t",
     "steer_cmd",
@@ -24,10 +28,14 @@ pub const CSV_COLUMNS: [&str; 9] = [
     "yaw_rate",
 ];
 
-/// Shortest recording the analysis accepts [s].
+/// Shortest recording the analysis accepts, all runs together [s].
 pub const MIN_DURATION_S: f64 = 5.0;
-/// Fewest state samples the analysis accepts.
+/// Fewest state samples the analysis accepts, all runs together.
 pub const MIN_SAMPLES: usize = 100;
+/// Shortest run kept [s]; shorter runs are dropped with a warning.
+pub const MIN_RUN_S: f64 = 2.0;
+/// Space left between runs when several are put on one time axis [s].
+const RUN_SPACING_S: f64 = 0.1;
 
 /// A command as sent to the car.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,7 +47,8 @@ pub struct Command {
     pub speed: f64,
 }
 
-/// A measured state of the centre of gravity.
+/// A measured state of the centre of gravity. A channel that was not measured at a sample
+/// is NaN (pose-and-speed logs have no `vy` and `yaw_rate`).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct StateSample {
     pub t: f64,
@@ -63,13 +72,30 @@ impl StateSample {
     }
 }
 
-/// A loaded recording.
+/// A loaded recording: one or more runs on one time axis, one after the other.
 #[derive(Debug, Clone, Default)]
 pub struct Recording {
     pub commands: Vec<Command>,
     pub states: Vec<StateSample>,
     /// Problems that did not stop the load (for the report).
     pub warnings: Vec<String>,
+    /// The runs; empty means one run holding every sample (see [`Recording::runs`]).
+    pub run_info: Vec<RunInfo>,
+}
+
+/// One run (a stretch of continuous logging) inside a [`Recording`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunInfo {
+    /// File name, with `#k` when a file held several runs.
+    pub name: String,
+    /// Time of its first and last sample on the recording's time axis [s].
+    pub start: f64,
+    pub end: f64,
+    /// Its samples: `states[first_state..first_state + n_states]`.
+    pub first_state: usize,
+    pub n_states: usize,
+    /// The source's own time of the run's first sample (epoch seconds in a ROS log).
+    pub t_offset: f64,
 }
 
 /// Topic names of a ROS 2 bag.
@@ -88,6 +114,10 @@ impl Default for McapTopics {
     }
 }
 
+/// What to record when there is not enough.
+pub const SHORT_HINT: &str = "record more: a few 3-s runs of steering steps at 2 and at 5 m/s, \
+constant-radius arcs and speed steps are enough";
+
 /// Wrap an angle to [-pi, pi): the simulator's own wrap.
 pub use paddock_sim::geometry::wrap_angle as wrap_pi;
 
@@ -96,6 +126,12 @@ impl Recording {
     /// last complete chunk; a rosbag2 bag folder in SQLite3 or MCAP storage; a `.db3`
     /// file), or else a CSV file.
     pub fn load(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
+        let rec = Self::load_inner(path, topics)?;
+        rec.check()?;
+        Ok(rec)
+    }
+
+    fn load_inner(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
         let rec = if paddock_recordings::is_bag(path) {
             let bag = paddock_recordings::read_bag(path, &[&topics.drive, &topics.odom]).map_err(
                 |e| SysidError::Format {
@@ -115,107 +151,138 @@ impl Recording {
                     e.utf8_error().valid_up_to()
                 ),
             })?;
-            Self::from_csv_str(&text)?
+            let name = path.file_name().map_or_else(
+                || path.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            );
+            Self::from_csv_named(&text, &name)?
         };
-        rec.check()?;
         Ok(rec)
     }
 
-    /// Parse CSV text with the header [`CSV_COLUMNS`] (extra columns ignored).
-    pub fn from_csv_str(text: &str) -> Result<Self, SysidError> {
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim().is_empty());
-        let Some((_, header)) = lines.next() else {
-            return Err(SysidError::Format {
-                message: "the CSV recording is empty (no header row)".into(),
-            });
-        };
-        let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
-        let mut idx = [0usize; 9];
-        for (k, col) in CSV_COLUMNS.iter().enumerate() {
-            idx[k] =
-                names
-                    .iter()
-                    .position(|n| n == col)
-                    .ok_or_else(|| SysidError::MissingColumn {
-                        column: (*col).to_string(),
-                        header: header.trim().to_string(),
-                    })?;
+    /// Every run, in time order (one covering everything when [`Self::run_info`] is empty).
+    pub fn runs(&self) -> Vec<RunInfo> {
+        if !self.run_info.is_empty() {
+            return self.run_info.clone();
         }
-        let mut rec = Recording::default();
-        let mut prev_t = f64::NEG_INFINITY;
-        for (line_no, line) in lines {
-            let row = line_no + 1;
-            let fields: Vec<&str> = line.split(',').map(|s| s.trim()).collect();
-            if fields.len() != names.len() {
-                return Err(SysidError::Row {
-                    row,
-                    message: format!(
-                        "has {} fields, the header has {}",
-                        fields.len(),
-                        names.len()
-                    ),
-                });
-            }
-            let mut v = [0.0; 9];
-            for (k, col) in CSV_COLUMNS.iter().enumerate() {
-                let s = fields[idx[k]];
-                let x: f64 = s.parse().map_err(|_| SysidError::Row {
-                    row,
-                    message: format!("column {col} = {s:?} is not a number"),
-                })?;
-                if !x.is_finite() {
-                    return Err(SysidError::Row {
-                        row,
-                        message: format!("column {col} = {s} is not a finite number"),
-                    });
+        vec![RunInfo {
+            name: "recording".into(),
+            start: self.states.first().map_or(0.0, |s| s.t),
+            end: self.duration(),
+            first_state: 0,
+            n_states: self.states.len(),
+            t_offset: 0.0,
+        }]
+    }
+
+    /// Put several recordings on one time axis, each run after the previous one
+    /// (commands before a run's start count from its start). Runs shorter than
+    /// [`MIN_RUN_S`] are dropped with a warning.
+    pub fn join(parts: Vec<Recording>) -> Recording {
+        let mut out = Recording::default();
+        // short runs go only when something longer stays (else `check` says "too short")
+        let any_long = parts
+            .iter()
+            .flat_map(|p| p.runs())
+            .any(|r| r.end - r.start >= MIN_RUN_S);
+        for part in parts {
+            for w in &part.warnings {
+                // the same words from many files once (the count is in the report's runs)
+                let generic = w.split_once(": ").map_or(w.as_str(), |(_, rest)| rest);
+                if !out.warnings.iter().any(|o| o == w || o.ends_with(generic)) {
+                    out.warnings.push(w.clone());
                 }
-                v[k] = x;
             }
-            let t = v[0];
-            if t <= prev_t {
-                return Err(SysidError::Row {
-                    row,
-                    message: format!("t = {t} does not increase (previous row t = {prev_t})"),
+            for run in part.runs() {
+                if any_long && run.end - run.start < MIN_RUN_S {
+                    out.warnings.push(format!(
+                        "{}: run of {:.2} s ({} samples) dropped: shorter than {MIN_RUN_S} s",
+                        run.name,
+                        run.end - run.start,
+                        run.n_states
+                    ));
+                    continue;
+                }
+                let shift = if out.states.is_empty() {
+                    -run.start
+                } else {
+                    ((out.duration() + RUN_SPACING_S) / RUN_SPACING_S).ceil() * RUN_SPACING_S
+                        - run.start
+                };
+                let first_state = out.states.len();
+                let states = &part.states[run.first_state..run.first_state + run.n_states];
+                out.states.extend(states.iter().map(|s| StateSample {
+                    t: s.t + shift,
+                    ..*s
+                }));
+                // the commands of this run: from the last one in force at its start
+                let lo = part.commands.partition_point(|c| c.t <= run.start);
+                let hi = part.commands.partition_point(|c| c.t <= run.end);
+                let from = lo.saturating_sub(1);
+                out.commands
+                    .extend(part.commands[from..hi].iter().map(|c| Command {
+                        t: c.t.max(run.start) + shift,
+                        ..*c
+                    }));
+                out.run_info.push(RunInfo {
+                    start: run.start + shift,
+                    end: run.end + shift,
+                    first_state,
+                    ..run
                 });
             }
-            if t < 0.0 {
-                return Err(SysidError::Row {
-                    row,
-                    message: format!("t = {t} is negative (time runs from 0)"),
-                });
-            }
-            prev_t = t;
-            rec.commands.push(Command {
-                t,
-                steer: v[1],
-                speed: v[2],
-            });
-            rec.states.push(StateSample {
-                t,
-                x: v[3],
-                y: v[4],
-                yaw: v[5],
-                vx: v[6],
-                vy: v[7],
-                yaw_rate: v[8],
-            });
         }
-        Ok(rec)
+        out
     }
 
-    /// Refuse recordings too short to say anything; warn on gaps.
+    /// [`Self::load`] without the length check (for recordings joined afterwards).
+    pub fn read(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
+        Self::load_inner(path, topics)
+    }
+
+    /// Channels (in [`CHANNELS`] order) with no measurement at all.
+    pub fn missing_channels(&self) -> [bool; 6] {
+        std::array::from_fn(|c| self.states.iter().all(|s| !s.channels()[c].is_finite()))
+    }
+
+    /// The run holding time `t` and the time inside it.
+    pub fn run_at(&self, t: f64) -> (String, f64) {
+        let runs = self.runs();
+        let i = runs.partition_point(|r| r.start <= t).saturating_sub(1);
+        runs.get(i)
+            .map_or((String::new(), t), |r| (r.name.clone(), t - r.start))
+    }
+
+    /// Sum of the runs' durations [s].
+    pub fn total_duration(&self) -> f64 {
+        self.runs().iter().map(|r| r.end - r.start).sum()
+    }
+
+    /// Parse CSV text with the header [`CSV_COLUMNS`] (extra columns ignored), leniently
+    /// ([`csv::parse`]), and cut it into runs ([`clean::split`]).
+    pub fn from_csv_str(text: &str) -> Result<Self, SysidError> {
+        Self::from_csv_named(text, "recording")
+    }
+
+    /// [`Self::from_csv_str`], naming the runs after `name`.
+    pub fn from_csv_named(text: &str, name: &str) -> Result<Self, SysidError> {
+        let p = csv::parse(text)?;
+        let runs = clean::into_runs(p.commands, p.states, true, p.warnings, name)?;
+        Ok(Self::join(runs))
+    }
+
+    /// Refuse recordings too short to say anything (all runs together).
     pub fn check(&self) -> Result<(), SysidError> {
         let n = self.states.len();
-        let duration = self.duration();
+        let duration = self.total_duration();
         if n < MIN_SAMPLES || duration < MIN_DURATION_S {
             return Err(SysidError::TooShort {
                 samples: n,
                 duration_s: duration,
+                runs: self.runs().len(),
                 min_samples: MIN_SAMPLES,
                 min_duration_s: MIN_DURATION_S,
+                hint: SHORT_HINT.into(),
             });
         }
         if self.commands.is_empty() {
@@ -226,7 +293,7 @@ impl Recording {
         Ok(())
     }
 
-    /// Time of the last state sample [s].
+    /// Time of the last state sample [s] (the end of the last run).
     pub fn duration(&self) -> f64 {
         self.states.last().map_or(0.0, |s| s.t)
     }
@@ -248,21 +315,38 @@ impl Recording {
         out
     }
 
-    /// Write the CSV form (one row per state sample, with the command in force then).
+    /// Write the CSV form (one row per state sample, with the command in force then). A
+    /// channel never measured has no column; one not measured at a sample, an empty cell.
     pub fn to_csv_string(&self) -> String {
-        let mut s = CSV_COLUMNS.join(",");
+        let missing = self.missing_channels();
+        let cols: Vec<&str> = CSV_COLUMNS
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| *k < 3 || !missing[k - 3])
+            .map(|(_, c)| *c)
+            .collect();
+        let mut s = cols.join(",");
         s.push('\n');
         let mut j = 0usize;
         let mut cur = (0.0, 0.0);
+        let prec = [5usize, 5, 6, 5, 5, 5];
         for st in &self.states {
             while j < self.commands.len() && self.commands[j].t <= st.t {
                 cur = (self.commands[j].steer, self.commands[j].speed);
                 j += 1;
             }
-            s.push_str(&format!(
-                "{:.4},{:.6},{:.5},{:.5},{:.5},{:.6},{:.5},{:.5},{:.5}\n",
-                st.t, cur.0, cur.1, st.x, st.y, st.yaw, st.vx, st.vy, st.yaw_rate
-            ));
+            s.push_str(&format!("{:.4},{:.6},{:.5}", st.t, cur.0, cur.1));
+            for (c, v) in st.channels().iter().enumerate() {
+                if missing[c] {
+                    continue;
+                }
+                if v.is_finite() {
+                    s.push_str(&format!(",{:.*}", prec[c], v));
+                } else {
+                    s.push(',');
+                }
+            }
+            s.push('\n');
         }
         s
     }
@@ -338,26 +422,22 @@ impl Recording {
                 speed,
             });
         }
-        let mut prev = f64::NEG_INFINITY;
+        let mut non_finite = 0usize;
         for (t, mut s) in odom {
             s.t = secs(t);
-            let finite = s.channels().iter().all(|v| v.is_finite());
-            if !finite || s.t <= prev {
-                rec.warnings.push(format!(
-                    "odometry at t = {:.3} s skipped ({})",
-                    s.t,
-                    if finite {
-                        "repeated time"
-                    } else {
-                        "non-finite"
-                    }
-                ));
+            if !(s.x.is_finite() && s.y.is_finite() && s.yaw.is_finite()) {
+                non_finite += 1;
                 continue;
             }
-            prev = s.t;
             rec.states.push(s);
         }
-        Ok(rec)
+        if non_finite > 0 {
+            rec.warnings.push(format!(
+                "{non_finite} odometry messages with a non-finite pose skipped"
+            ));
+        }
+        let runs = clean::into_runs(rec.commands, rec.states, false, rec.warnings, "bag")?;
+        Ok(Self::join(runs))
     }
 
     /// Write a ROS 2 bag (uncompressed MCAP) with the drive and odometry topics.
@@ -634,26 +714,108 @@ mod tests {
     fn csv_errors_name_the_problem() {
         let e = Recording::from_csv_str("t,steer_cmd,x\n0,0,0\n").unwrap_err();
         assert!(e.to_string().contains("speed_cmd"), "{e}");
-        let mut bad = csv(10);
-        bad.push_str("0.3,abc,2,0,0,0,0,0,0,0\n");
-        let e = Recording::from_csv_str(&bad).unwrap_err();
+        let e =
+            Recording::from_csv_str("t,steer_cmd,speed_cmd,x,y,yaw\n0,a,b,c,d,e\n").unwrap_err();
         assert!(
-            e.to_string().contains("row 12") && e.to_string().contains("abc"),
+            e.to_string().contains("no usable rows") && e.to_string().contains("\"a\""),
             "{e}"
         );
-        let mut nan = csv(10);
-        nan.push_str("0.3,0,NaN,0,0,0,0,0,0,0\n");
-        let e = Recording::from_csv_str(&nan).unwrap_err();
-        assert!(e.to_string().contains("speed_cmd"), "{e}");
-        let mut back = csv(10);
-        back.push_str("0.1,0,0,0,0,0,0,0,0,0\n");
-        let e = Recording::from_csv_str(&back).unwrap_err();
-        assert!(e.to_string().contains("does not increase"), "{e}");
         let e = Recording::from_csv_str(&csv(20))
             .unwrap()
             .check()
             .unwrap_err();
         assert!(e.to_string().contains("too short"), "{e}");
+    }
+
+    /// Rows that cannot be used are skipped and counted, naming the first ones.
+    #[test]
+    fn regression_one_nan_or_text_row_no_longer_rejects_the_file() {
+        let mut bad = csv(300);
+        bad.push_str("7.5,abc,2,0,0,0,0,0,0,0\n");
+        bad.push_str("7.525,NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN\n");
+        bad.push_str("7.55,0.1\n");
+        let r = Recording::from_csv_str(&bad).unwrap();
+        assert_eq!(r.states.len(), 300);
+        let w = r.warnings.join(" | ");
+        assert!(w.contains("3 of 303 rows skipped"), "{w}");
+        assert!(w.contains("row 302") && w.contains("abc"), "{w}");
+    }
+
+    /// ROS logs stamp rows with epoch seconds: time is taken from the first row, and the
+    /// offset kept (it used to size a 2.7 TB allocation).
+    #[test]
+    fn regression_epoch_timestamps_start_at_zero() {
+        let text = csv(300).replace("\n0,", "\n1700000000,");
+        let mut s = String::from("t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate\n");
+        for i in 0..300 {
+            let t = 1_700_000_000.0 + i as f64 * 0.025;
+            s.push_str(&format!("{t:.3},0.1,2,{},0,0,1,0,0\n", i as f64 * 0.025));
+        }
+        let r = Recording::from_csv_str(&s).unwrap();
+        r.check().unwrap();
+        assert_eq!(r.states[0].t, 0.0);
+        assert!((r.duration() - 7.475).abs() < 1e-6, "{}", r.duration());
+        assert_eq!(r.runs()[0].t_offset, 1_700_000_000.0);
+        assert!(!text.is_empty());
+    }
+
+    /// One stray row far in the future used to hang the replay (10^7 steps).
+    #[test]
+    fn regression_a_stray_row_is_skipped_not_simulated() {
+        let mut text = csv(300);
+        text.push_str("100000,0,0,0,0,0,0,0,0,0\n");
+        let r = Recording::from_csv_str(&text).unwrap();
+        assert_eq!(r.states.len(), 300);
+        assert!(r.duration() < 8.0);
+        assert!(
+            r.warnings.iter().any(|w| w.contains("stray")),
+            "{:?}",
+            r.warnings
+        );
+        let mut back = csv(300);
+        back.insert_str(back.find("\n5,").unwrap(), "\n0.1,0,0,0,0,0,0,0,0,0");
+        let r = Recording::from_csv_str(&back).unwrap();
+        assert_eq!(r.states.len(), 300);
+        assert_eq!(r.runs().len(), 1);
+    }
+
+    /// A byte-order mark used to read as a missing `t` column.
+    #[test]
+    fn regression_a_byte_order_mark_is_ignored() {
+        let text = format!("\u{feff}{}", csv(300));
+        let r = Recording::from_csv_str(&text).unwrap();
+        assert_eq!(r.states.len(), 300);
+    }
+
+    /// A log with a long gap or a restart of time holds several runs; pose-and-speed
+    /// logs have no `vy` or `yaw_rate` column.
+    #[test]
+    fn gaps_make_runs_and_velocity_channels_are_optional() {
+        let mut s = String::from("\"t\",steer_cmd,speed_cmd,x,y,yaw,vx\n");
+        for i in 0..120 {
+            s.push_str(&format!("{},0.1,2,0,0,0,1.0\n", i as f64 * 0.025));
+        }
+        for i in 0..120 {
+            s.push_str(&format!("{},0.1,2,0,0,0,\n", 10.0 + i as f64 * 0.025));
+        }
+        let r = Recording::from_csv_str(&s).unwrap();
+        r.check().unwrap();
+        let runs = r.runs();
+        assert_eq!(runs.len(), 2, "{:?}", r.warnings);
+        assert!(runs[1].start > runs[0].end && runs[1].start < runs[0].end + 0.3);
+        assert_eq!(
+            r.missing_channels(),
+            [false, false, false, false, true, true]
+        );
+        assert!(r.states[130].vx.is_nan());
+        assert!(
+            r.warnings.iter().any(|w| w.contains("vy, yaw_rate")),
+            "{:?}",
+            r.warnings
+        );
+        // a command before the second run's start does not leak into it
+        let g = r.commands_on_grid(crate::replay::DT, (r.duration() / 0.01) as usize);
+        assert!(g.iter().all(|c| c.1 == 2.0 || c.1 == 0.0));
     }
 
     #[test]

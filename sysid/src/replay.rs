@@ -35,23 +35,43 @@ struct SampleRef {
     window: usize,
 }
 
+/// A window start: the recorded state the replay is reset to there.
+#[derive(Debug, Clone, Copy)]
+struct Anchor {
+    step: usize,
+    state: StateSample,
+    /// First window of a run: the car starts afresh (command path at rest, or settled
+    /// on the run's first command when the run starts in motion).
+    fresh: bool,
+    run: usize,
+}
+
+/// Speed above which a run counts as starting in motion [m/s].
+const MOVING_MPS: f64 = 0.3;
+
 /// The recording prepared for replay.
 #[derive(Debug, Clone)]
 pub struct Replay {
     commands: Vec<(f64, f64)>,
-    /// Window start steps, and the anchor state at each.
-    anchors: Vec<(usize, StateSample)>,
+    anchors: Vec<Anchor>,
     samples: Vec<SampleRef>,
     meas: Vec<[f64; 6]>,
+    /// Sample times and the recording's states (for a measurement delay).
+    times: Vec<f64>,
+    states: Vec<StateSample>,
+    /// State index range of each run.
+    runs: Vec<(usize, usize)>,
     /// Per-channel noise scale estimated from the recording (with floors).
     pub sigma: [f64; 6],
     pub window_s: f64,
+    win_steps: usize,
 }
 
 /// Residuals of one replay.
 #[derive(Debug, Clone)]
 pub struct Residuals {
-    /// recorded - simulated, per sample (yaw wrapped), in [`CHANNELS`] order.
+    /// recorded - simulated, per sample (yaw wrapped), in [`CHANNELS`] order; NaN where
+    /// the channel was not measured.
     pub values: Vec<[f64; 6]>,
     /// Simulated channels per sample.
     pub simulated: Vec<[f64; 6]>,
@@ -61,49 +81,107 @@ pub struct Residuals {
     pub state: Vec<usize>,
 }
 
+fn step_of(t: f64) -> (usize, f64) {
+    let pos = (t / DT + 1e-9).max(0.0);
+    let step = pos.floor();
+    (step as usize, (pos - step).clamp(0.0, 1.0))
+}
+
 impl Replay {
-    /// Prepare `rec` (already checked) with windows of `window_s` seconds.
+    /// Prepare `rec` (already checked) with windows of `window_s` seconds; each run
+    /// starts its own windows.
     pub fn new(rec: &Recording, window_s: f64) -> Self {
         let t_end = rec.duration();
         let steps = (t_end / DT).floor() as usize + 1;
         let commands = rec.commands_on_grid(DT, steps);
         let win_steps = ((window_s / DT).round() as usize).max(10);
-        let mut anchors = Vec::new();
-        let mut a = 0usize;
-        while a < steps {
-            anchors.push((a, smoothed_state(rec, a as f64 * DT)));
-            a += win_steps;
+        let runs: Vec<(usize, usize)> = rec
+            .runs()
+            .iter()
+            .map(|r| (r.first_state, r.first_state + r.n_states))
+            .collect();
+        let mut replay = Self {
+            commands,
+            anchors: Vec::new(),
+            samples: Vec::with_capacity(rec.states.len()),
+            meas: Vec::with_capacity(rec.states.len()),
+            times: rec.states.iter().map(|s| s.t).collect(),
+            states: rec.states.clone(),
+            runs,
+            sigma: noise_scale(rec),
+            window_s: win_steps as f64 * DT,
+            win_steps,
+        };
+        replay.anchors = replay.anchors_at(0.0);
+        for (r, &(lo, hi)) in replay.runs.clone().iter().enumerate() {
+            for i in lo..hi {
+                let (step, frac) = replay.sample_step(r, replay.times[i]);
+                if step >= steps {
+                    continue;
+                }
+                let window = replay.anchors.partition_point(|a| a.step <= step) - 1;
+                replay.samples.push(SampleRef {
+                    state: i,
+                    step,
+                    frac,
+                    window,
+                });
+                replay.meas.push(rec.states[i].channels());
+            }
         }
-        let mut samples = Vec::with_capacity(rec.states.len());
-        let mut meas = Vec::with_capacity(rec.states.len());
-        for (i, s) in rec.states.iter().enumerate() {
-            let pos = s.t / DT;
-            let step = pos.floor() as usize;
-            if step + 1 > steps {
+        replay
+    }
+
+    /// Window starts when the measurements lag the truth by `delay` [s]: the state at
+    /// step `k` is the one recorded at `k dt + delay`.
+    fn anchors_at(&self, delay: f64) -> Vec<Anchor> {
+        let steps = self.commands.len();
+        let mut anchors = Vec::new();
+        for (r, &(lo, hi)) in self.runs.iter().enumerate() {
+            if lo >= hi {
                 continue;
             }
-            let frac = pos - step as f64;
-            samples.push(SampleRef {
-                state: i,
-                step,
-                frac,
-                window: step / win_steps,
-            });
-            meas.push(s.channels());
+            let first = ((self.times[lo] / DT) - 1e-9).ceil().max(0.0) as usize;
+            let last = ((self.times[hi - 1] / DT) + 1e-9).floor() as usize;
+            let mut a = first;
+            while a <= last && a < steps {
+                // unmeasured velocities: derived from the pose where a run starts, else
+                // carried on from the replay itself (less noisy than a pose derivative)
+                anchors.push(Anchor {
+                    step: a,
+                    state: smoothed(&self.states[lo..hi], a as f64 * DT + delay, a == first),
+                    fresh: a == first,
+                    run: r,
+                });
+                a += self.win_steps;
+            }
         }
-        let sigma = noise_scale(rec);
-        Self {
-            commands,
-            anchors,
-            samples,
-            meas,
-            sigma,
-            window_s: win_steps as f64 * DT,
+        anchors
+    }
+
+    /// Step and fraction of a sample at `t` of run `r` (never before the run's start).
+    fn sample_step(&self, r: usize, t: f64) -> (usize, f64) {
+        let start = self.times[self.runs[r].0];
+        let first = ((start / DT) - 1e-9).ceil().max(0.0) as usize;
+        let (step, frac) = step_of(t);
+        if step < first {
+            (first, 0.0)
+        } else {
+            (step, frac)
         }
     }
 
     pub fn n_windows(&self) -> usize {
         self.anchors.len()
+    }
+
+    /// Measured values (samples x channels measured) per window.
+    pub fn window_counts(&self) -> Vec<usize> {
+        let mut out = vec![0usize; self.anchors.len()];
+        for (s, m) in self.samples.iter().zip(&self.meas) {
+            out[s.window] += m.iter().filter(|v| v.is_finite()).count();
+        }
+        out
     }
 
     pub fn n_samples(&self) -> usize {
@@ -117,7 +195,17 @@ impl Replay {
 
     /// Window start time [s] of window `w`.
     pub fn window_start(&self, w: usize) -> f64 {
-        self.anchors[w].0 as f64 * DT
+        self.anchors[w].step as f64 * DT
+    }
+
+    /// Run of window `w`.
+    pub fn window_run(&self, w: usize) -> usize {
+        self.anchors[w].run
+    }
+
+    /// Number of runs.
+    pub fn n_runs(&self) -> usize {
+        self.runs.len()
     }
 
     /// Commands on the physics grid.
@@ -125,22 +213,60 @@ impl Replay {
         &self.commands
     }
 
-    /// Run the replay with `p`, calling `visit(sample, residual, simulated)`.
-    fn run(&self, p: &VehicleParams, mut visit: impl FnMut(usize, [f64; 6], [f64; 6])) {
-        let first = self.anchors[0].1;
+    /// Run the replay with `p`, the measurements lagging the truth by `delay` [s],
+    /// calling `visit(sample, window, residual, simulated)`.
+    fn run(
+        &self,
+        p: &VehicleParams,
+        delay: f64,
+        mut visit: impl FnMut(usize, usize, [f64; 6], [f64; 6]),
+    ) {
+        let shifted;
+        let (anchors, samples): (&[Anchor], &[SampleRef]) = if delay == 0.0 {
+            (&self.anchors, &self.samples)
+        } else {
+            let anchors = self.anchors_at(delay);
+            let samples: Vec<SampleRef> = self
+                .samples
+                .iter()
+                .map(|s| {
+                    let r = self.anchors[s.window].run;
+                    let (step, frac) = self.sample_step(r, self.times[s.state] - delay);
+                    let window = anchors
+                        .partition_point(|a| a.step <= step)
+                        .saturating_sub(1);
+                    SampleRef {
+                        step,
+                        frac,
+                        window,
+                        ..*s
+                    }
+                })
+                .collect();
+            shifted = (anchors, samples);
+            (&shifted.0, &shifted.1)
+        };
+        let first = anchors[0].state;
         let mut car = Vehicle::new(Pose::new(first.x, first.y, first.yaw.rem_euclid(TAU)));
         let mut next_anchor = 0usize;
         let mut si = 0usize;
         for (k, &(steer, speed)) in self.commands.iter().enumerate() {
-            if next_anchor < self.anchors.len() && self.anchors[next_anchor].0 == k {
-                anchor(&mut car, &self.anchors[next_anchor].1);
+            if next_anchor < anchors.len() && anchors[next_anchor].step == k {
+                let a = &anchors[next_anchor];
+                if a.fresh && next_anchor > 0 {
+                    car = Vehicle::new(Pose::new(a.state.x, a.state.y, 0.0));
+                }
+                anchor(&mut car, &a.state);
+                if a.fresh && libm::hypot(a.state.vx, a.state.vy) > MOVING_MPS {
+                    car.settle_commands(p, steer, speed, DT);
+                }
                 next_anchor += 1;
             }
             let before = car.state;
             car.step(p, steer, speed, DT);
             let after = car.state;
-            while si < self.samples.len() && self.samples[si].step == k {
-                let f = self.samples[si].frac;
+            while si < samples.len() && samples[si].step == k {
+                let f = samples[si].frac;
                 let lerp = |a: f64, b: f64| a + f * (b - a);
                 let yaw = before.yaw + f * wrap_pi(after.yaw - before.yaw);
                 let (vx0, vy0) = body(&before);
@@ -159,11 +285,16 @@ impl Replay {
                     r[c] = m[c] - sim[c];
                 }
                 r[2] = wrap_pi(r[2]);
-                if !r.iter().all(|v| v.is_finite()) {
+                if !sim.iter().all(|v| v.is_finite()) {
                     // a model that blew up: a huge but finite residual keeps sums usable
                     r = [1e3; 6];
                 }
-                visit(si, r, sim);
+                for c in 0..6 {
+                    if !m[c].is_finite() {
+                        r[c] = f64::NAN;
+                    }
+                }
+                visit(si, samples[si].window, r, sim);
                 si += 1;
             }
         }
@@ -171,27 +302,41 @@ impl Replay {
 
     /// Noise-normalised squared residual summed per window.
     pub fn window_costs(&self, p: &VehicleParams) -> Vec<f64> {
+        self.window_costs_at(p, 0.0)
+    }
+
+    /// [`Self::window_costs`] with the measurements lagging the truth by `delay` [s].
+    pub fn window_costs_at(&self, p: &VehicleParams, delay: f64) -> Vec<f64> {
         let mut cost = vec![0.0; self.anchors.len()];
         let inv: [f64; 6] = std::array::from_fn(|c| 1.0 / (self.sigma[c] * self.sigma[c]));
-        self.run(p, |si, r, _| {
-            let w = self.samples[si].window;
-            cost[w] += (0..6).map(|c| r[c] * r[c] * inv[c]).sum::<f64>();
+        self.run(p, delay, |_, w, r, _| {
+            let w = w.min(cost.len() - 1);
+            cost[w] += (0..6)
+                .filter(|&c| r[c].is_finite())
+                .map(|c| r[c] * r[c] * inv[c])
+                .sum::<f64>();
         });
         cost
     }
 
     /// Every residual of a replay with `p`.
     pub fn residuals(&self, p: &VehicleParams) -> Residuals {
+        self.residuals_at(p, 0.0)
+    }
+
+    /// [`Self::residuals`] with the measurements lagging the truth by `delay` [s].
+    pub fn residuals_at(&self, p: &VehicleParams, delay: f64) -> Residuals {
         let n = self.samples.len();
         let mut out = Residuals {
             values: Vec::with_capacity(n),
             simulated: Vec::with_capacity(n),
-            window: self.samples.iter().map(|s| s.window).collect(),
+            window: Vec::with_capacity(n),
             state: self.samples.iter().map(|s| s.state).collect(),
         };
-        self.run(p, |_, r, sim| {
+        self.run(p, delay, |_, w, r, sim| {
             out.values.push(r);
             out.simulated.push(sim);
+            out.window.push(w);
         });
         out
     }
@@ -199,18 +344,27 @@ impl Replay {
 
 impl Residuals {
     /// Root mean square per channel over the samples whose window passes `keep`.
+    /// NaN for a channel never measured there.
     pub fn rmse(&self, keep: impl Fn(usize) -> bool) -> [f64; 6] {
         let mut sum = [0.0; 6];
-        let mut n = 0usize;
+        let mut n = [0usize; 6];
         for (r, &w) in self.values.iter().zip(&self.window) {
             if keep(w) {
-                n += 1;
                 for c in 0..6 {
-                    sum[c] += r[c] * r[c];
+                    if r[c].is_finite() {
+                        n[c] += 1;
+                        sum[c] += r[c] * r[c];
+                    }
                 }
             }
         }
-        std::array::from_fn(|c| (sum[c] / n.max(1) as f64).sqrt())
+        std::array::from_fn(|c| {
+            if n[c] == 0 {
+                f64::NAN
+            } else {
+                (sum[c] / n[c] as f64).sqrt()
+            }
+        })
     }
 }
 
@@ -220,28 +374,87 @@ fn body(s: &paddock_sim::dynamics::VehicleState) -> (f64, f64) {
     (s.v * libm::cos(s.slip_angle), s.v * libm::sin(s.slip_angle))
 }
 
-/// Reset the dynamic state to a recorded one; the wheel angle and command memory stay.
+/// Reset the dynamic state to a recorded one; the wheel angle and command memory stay,
+/// and so do the velocities the recording does not have (NaN).
 fn anchor(car: &mut Vehicle, s: &StateSample) {
-    let speed = libm::hypot(s.vx, s.vy);
-    let (v, slip) = if speed < 0.3 {
-        (s.vx, 0.0)
-    } else if s.vx >= 0.0 {
-        (speed, libm::atan2(s.vy, s.vx))
-    } else {
-        (-speed, libm::atan2(-s.vy, -s.vx))
-    };
     let st = &mut car.state;
     st.x = s.x;
     st.y = s.y;
     st.yaw = s.yaw.rem_euclid(TAU);
-    st.v = v;
-    st.yaw_rate = s.yaw_rate;
-    st.slip_angle = slip;
+    if s.yaw_rate.is_finite() {
+        st.yaw_rate = s.yaw_rate;
+    }
+    match (s.vx.is_finite(), s.vy.is_finite()) {
+        (true, true) => {
+            let speed = libm::hypot(s.vx, s.vy);
+            let (v, slip) = if speed < 0.3 {
+                (s.vx, 0.0)
+            } else if s.vx >= 0.0 {
+                (speed, libm::atan2(s.vy, s.vx))
+            } else {
+                (-speed, libm::atan2(-s.vy, -s.vx))
+            };
+            st.v = v;
+            st.slip_angle = slip;
+        }
+        // the speed alone (a VESC): keep the replay's own slip
+        (true, false) => {
+            let c = libm::cos(st.slip_angle);
+            st.v = if c > 0.5 { s.vx / c } else { s.vx };
+        }
+        _ => {}
+    }
 }
 
-/// The recorded state at `t`, smoothed by a local linear fit over nearby samples.
-pub fn smoothed_state(rec: &Recording, t: f64) -> StateSample {
-    let st = &rec.states;
+/// Half-width of the local fit that derives unmeasured velocities from the pose [s].
+const DERIVE_HALF_WIDTH_S: f64 = 0.15;
+
+/// Value and slope at `t` of channel `c` by a least-squares line through the measured
+/// samples of `pts` (yaw unwrapped around `yaw_ref`); `None` with fewer than `min` samples.
+fn local_line(
+    pts: &[StateSample],
+    t: f64,
+    c: usize,
+    yaw_ref: f64,
+    min: usize,
+) -> Option<(f64, f64)> {
+    let y = |s: &StateSample| {
+        let ch = s.channels()[c];
+        if c == 2 {
+            yaw_ref + wrap_pi(ch - yaw_ref)
+        } else {
+            ch
+        }
+    };
+    let used: Vec<&StateSample> = pts.iter().filter(|s| s.channels()[c].is_finite()).collect();
+    if used.len() < min {
+        return None;
+    }
+    let n = used.len() as f64;
+    let tm = used.iter().map(|s| s.t - t).sum::<f64>() / n;
+    let var = used.iter().map(|s| (s.t - t - tm).powi(2)).sum::<f64>();
+    let ym = used.iter().map(|s| y(s)).sum::<f64>() / n;
+    let slope = if var > 1e-12 {
+        used.iter()
+            .map(|s| (s.t - t - tm) * (y(s) - ym))
+            .sum::<f64>()
+            / var
+    } else {
+        0.0
+    };
+    Some((ym - slope * tm, slope))
+}
+
+/// The recorded state at `t`, smoothed by a local linear fit over nearby samples of one
+/// run. A velocity channel that was not measured is derived from the pose (its slope over
+/// a wider span): `yaw_rate` from the yaw, `vx` and `vy` from the position turned into
+/// the body frame.
+pub fn smoothed_state(st: &[StateSample], t: f64) -> StateSample {
+    smoothed(st, t, true)
+}
+
+/// [`smoothed_state`]; without `derive`, unmeasured velocities stay NaN.
+fn smoothed(st: &[StateSample], t: f64, derive: bool) -> StateSample {
     let lo = st.partition_point(|s| s.t < t - ANCHOR_HALF_WIDTH_S);
     let hi = st.partition_point(|s| s.t <= t + ANCHOR_HALF_WIDTH_S);
     let nearest = {
@@ -258,74 +471,83 @@ pub fn smoothed_state(rec: &Recording, t: f64) -> StateSample {
         std::slice::from_ref(&st[nearest])
     };
     let yaw_ref = st[nearest].yaw;
-    let mut out = StateSample {
-        t,
-        ..Default::default()
-    };
-    let n = pts.len() as f64;
-    let tm = pts.iter().map(|s| s.t - t).sum::<f64>() / n;
-    let var = pts.iter().map(|s| (s.t - t - tm).powi(2)).sum::<f64>();
-    let mut vals = [0.0; 6];
+    let mut vals = [f64::NAN; 6];
     for (c, v) in vals.iter_mut().enumerate() {
-        let y = |s: &StateSample| {
-            let ch = s.channels()[c];
-            if c == 2 {
-                yaw_ref + wrap_pi(ch - yaw_ref)
-            } else {
-                ch
-            }
-        };
-        let ym = pts.iter().map(y).sum::<f64>() / n;
-        let slope = if var > 1e-12 {
-            pts.iter()
-                .map(|s| (s.t - t - tm) * (y(s) - ym))
-                .sum::<f64>()
-                / var
+        if let Some((value, _)) = local_line(pts, t, c, yaw_ref, 1) {
+            *v = value;
+        }
+    }
+    if derive && vals[3..].iter().any(|v| !v.is_finite()) {
+        let wlo = st.partition_point(|s| s.t < t - DERIVE_HALF_WIDTH_S);
+        let whi = st.partition_point(|s| s.t <= t + DERIVE_HALF_WIDTH_S);
+        let wide = &st[wlo..whi.max(wlo)];
+        let slope = |c: usize| local_line(wide, t, c, yaw_ref, 3).map_or(0.0, |l| l.1);
+        let yaw = vals[2];
+        let (sx, sy) = (slope(0), slope(1));
+        let (sn, cs) = (libm::sin(yaw), libm::cos(yaw));
+        if !vals[3].is_finite() {
+            vals[3] = cs * sx + sn * sy;
+        }
+        if !vals[4].is_finite() {
+            vals[4] = -sn * sx + cs * sy;
+        }
+        if !vals[5].is_finite() {
+            vals[5] = slope(2);
+        }
+    }
+    let vals: [f64; 6] = std::array::from_fn(|c| {
+        if vals[c].is_finite() || !derive && c >= 3 {
+            vals[c]
         } else {
             0.0
-        };
-        *v = ym - slope * tm;
+        }
+    });
+    StateSample {
+        t,
+        x: vals[0],
+        y: vals[1],
+        yaw: wrap_pi(vals[2]),
+        vx: vals[3],
+        vy: vals[4],
+        yaw_rate: vals[5],
     }
-    out.x = vals[0];
-    out.y = vals[1];
-    out.yaw = wrap_pi(vals[2]);
-    out.vx = vals[3];
-    out.vy = vals[4];
-    out.yaw_rate = vals[5];
-    out
 }
 
 /// Per-channel measurement noise: each sample against the line through its neighbours
-/// (`var = 1.5 sigma^2` for white noise), with floors.
+/// (`var = 1.5 sigma^2` for white noise), within each run, over the samples where the
+/// channel was measured, with floors.
 pub fn noise_scale(rec: &Recording) -> [f64; 6] {
-    let st = &rec.states;
     let mut sum = [0.0; 6];
-    let mut n = 0usize;
-    for w in st.windows(3) {
-        let (a, b, c) = (w[0], w[1], w[2]);
-        let span = c.t - a.t;
-        if span <= 0.0 || span > 0.2 {
-            continue;
+    let mut n = [0usize; 6];
+    for run in rec.runs() {
+        let st = &rec.states[run.first_state..run.first_state + run.n_states];
+        for w in st.windows(3) {
+            let (a, b, c) = (w[0], w[1], w[2]);
+            let span = c.t - a.t;
+            if span <= 0.0 || span > 0.2 {
+                continue;
+            }
+            let f = (b.t - a.t) / span;
+            let (ca, cb, cc) = (a.channels(), b.channels(), c.channels());
+            for k in 0..6 {
+                let (ya, yc) = if k == 2 {
+                    (
+                        cb[2] + wrap_pi(ca[2] - cb[2]),
+                        cb[2] + wrap_pi(cc[2] - cb[2]),
+                    )
+                } else {
+                    (ca[k], cc[k])
+                };
+                let e = cb[k] - (ya + f * (yc - ya));
+                if e.is_finite() {
+                    sum[k] += e * e;
+                    n[k] += 1;
+                }
+            }
         }
-        let f = (b.t - a.t) / span;
-        let (ca, cb, cc) = (a.channels(), b.channels(), c.channels());
-        for k in 0..6 {
-            let (ya, yc) = if k == 2 {
-                (
-                    cb[2] + wrap_pi(ca[2] - cb[2]),
-                    cb[2] + wrap_pi(cc[2] - cb[2]),
-                )
-            } else {
-                (ca[k], cc[k])
-            };
-            let pred = ya + f * (yc - ya);
-            let e = cb[k] - pred;
-            sum[k] += e * e;
-        }
-        n += 1;
     }
     std::array::from_fn(|k| {
-        let s = (sum[k] / n.max(1) as f64 / 1.5).sqrt();
+        let s = (sum[k] / n[k].max(1) as f64 / 1.5).sqrt();
         s.max(SIGMA_FLOOR[k])
     })
 }

@@ -7,6 +7,8 @@ use serde_json::{Value, json};
 
 use crate::SysidError;
 use crate::analysis::Analysis;
+use crate::effects::EffectKind;
+use crate::locate::Group;
 use crate::recording::{CHANNELS, Recording};
 
 fn channels(v: &[f64; 6]) -> Value {
@@ -40,6 +42,12 @@ pub fn to_json(a: &Analysis, rec: &Recording) -> Value {
                     "passed_test": e.significant,
                 },
                 "round": c.round,
+                "in_vehicle": e.kind.in_vehicle(),
+                "reading": c.selected.then(|| reading(a, c.evidence.kind, &c.values)),
+                "interval": c.interval.as_ref().map(|iv| interval_json(e.kind, iv)),
+                "not_detected_range": c.could_be.map(|b| {
+                    json!({ e.kind.param_names()[0]: [r5(b[0]), r5(b[1])] })
+                }),
             })
         })
         .collect();
@@ -50,38 +58,156 @@ pub fn to_json(a: &Analysis, rec: &Recording) -> Value {
             "rmse_after": channels(&a.rmse_after),
             "rmse_fitted_in_sample": channels(&a.rmse_fitted_in_sample),
             "noise_floor": channels(&a.noise_floor),
-            "heldout": format!("{}-fold cross-validation over contiguous time blocks; replay windows of {} s re-anchored to the recorded state", a.folds, a.window_s),
+            "heldout": format!("{}-fold cross-validation over {}; replay windows of {} s re-anchored to the recorded state", a.folds, if a.heldout_runs { "whole runs" } else { "contiguous time blocks" }, a.window_s),
         },
-        "mismatch": a.located.mismatch.iter().map(|g| g.to_json()).collect::<Vec<_>>(),
+        "mismatch": a.located.mismatch.iter().map(|g| {
+            let mut j = g.to_json();
+            if g.kind == "time" {
+                let (run, t) = rec.run_at(g.range[0]);
+                j["run"] = json!(run);
+                j["run_t0"] = json!((t * 1e3).round() / 1e3);
+            }
+            if let Some(k) = explained_by(a, g) {
+                j["explained_by"] = json!(k);
+            }
+            j
+        }).collect::<Vec<_>>(),
         "recording": {
-            "duration_s": rec.duration(),
+            "duration_s": rec.total_duration(),
             "samples": rec.states.len(),
             "commands": rec.commands.len(),
             "warnings": rec.warnings,
+            "runs": rec.runs().iter().map(|r| {
+                let s = &rec.states[r.first_state];
+                json!({
+                    "name": r.name,
+                    "duration_s": ((r.end - r.start) * 1e3).round() / 1e3,
+                    "samples": r.n_states,
+                    "t_offset": r.t_offset,
+                    "start": if s.vx.abs() > 0.3 { "moving" } else { "rest" },
+                })
+            }).collect::<Vec<_>>(),
+            "channels_missing": missing_names(rec),
         },
+        "not_identifiable": a.not_identifiable.iter().map(|(k, why)| json!({"effect": k.name(), "why": why})).collect::<Vec<_>>(),
+        "above_noise_floor": above_noise(a),
         "analysis_seconds": (a.seconds * 100.0).round() / 100.0,
     })
 }
 
-/// The report in plain words.
-pub fn to_markdown(a: &Analysis, rec: &Recording) -> String {
-    let mut s = String::new();
-    let _ = writeln!(s, "# Reality-gap report\n");
-    let _ = writeln!(
-        s,
-        "Recording: {:.1} s, {} state samples, {} commands. The recorded commands were replayed \
-         through the simulator in {} s windows, each started from the recorded state, and the \
-         simulated states compared with the recorded ones.\n",
-        rec.duration(),
-        rec.states.len(),
-        rec.commands.len(),
-        a.window_s
-    );
-    for w in &rec.warnings {
-        let _ = writeln!(s, "Warning: {w}\n");
+fn reading(a: &Analysis, kind: EffectKind, v: &[f64]) -> String {
+    crate::explain::reading(kind, v, a.nominal.mu)
+}
+
+fn r5(x: f64) -> f64 {
+    (x * 1e5).round() / 1e5
+}
+
+/// `{param: [lo, hi]}` (a friction patch: its mu only).
+fn interval_json(kind: EffectKind, iv: &[[f64; 2]]) -> Value {
+    let m: serde_json::Map<String, Value> = kind
+        .param_names()
+        .iter()
+        .zip(iv)
+        .take(if kind == EffectKind::FrictionPatch {
+            1
+        } else {
+            iv.len()
+        })
+        .map(|(n, b)| ((*n).to_string(), json!([r5(b[0]), r5(b[1])])))
+        .collect();
+    Value::Object(m)
+}
+
+fn missing_names(rec: &Recording) -> Vec<&'static str> {
+    let m = rec.missing_channels();
+    CHANNELS
+        .iter()
+        .zip(m)
+        .filter(|(_, m)| *m)
+        .map(|(c, _)| *c)
+        .collect()
+}
+
+/// Channels where the fitted model's held-out error stays above 1.5 x the noise floor.
+fn above_noise(a: &Analysis) -> Vec<&'static str> {
+    CHANNELS
+        .iter()
+        .enumerate()
+        .filter(|(c, _)| a.rmse_after[*c].is_finite() && a.rmse_after[*c] > 1.5 * a.noise_floor[*c])
+        .map(|(_, n)| *n)
+        .collect()
+}
+
+/// The kept effect that explains a mismatch location: the first kept effect of the kinds
+/// that act there, when the fitted model's residual there fell by 30 % or more.
+fn explained_by(a: &Analysis, g: &Group) -> Option<&'static str> {
+    let fitted = a
+        .located_fitted
+        .time
+        .iter()
+        .chain(&a.located_fitted.regimes)
+        .chain(&a.located_fitted.cells)
+        .find(|f| f.kind == g.kind && f.label == g.label && f.range == g.range)?;
+    if fitted.score > 0.7 * g.score {
+        return None;
     }
-    let _ = writeln!(s, "## What is missing from the simulator\n");
-    if a.effects.is_empty() {
+    use EffectKind::*;
+    let acting: &[EffectKind] = match (g.kind, g.label.as_str()) {
+        ("region", _) => &[FrictionPatch, Friction, TireSaturation],
+        (_, "lateral_accel_mps2") => &[TireSaturation, Friction, FrictionPatch, SteeringGain],
+        (_, "steering_rate_radps") => &[
+            SteeringDelay,
+            SteeringLag,
+            SteeringBacklash,
+            MeasurementDelay,
+            SteeringGain,
+        ],
+        (_, "speed_mps") => &[Drag, SpeedGain, DriveLag, Friction, SteeringGain],
+        (_, "braking") => &[DriveLag, SpeedGain, Drag],
+        _ => &[],
+    };
+    let kept: Vec<EffectKind> = a
+        .candidates
+        .iter()
+        .filter(|c| c.selected)
+        .map(|c| c.evidence.kind)
+        .collect();
+    acting
+        .iter()
+        .find(|k| kept.contains(k))
+        .or(kept.first())
+        .map(|k| k.name())
+}
+
+fn fmt_range(kind: EffectKind, iv: &[[f64; 2]]) -> String {
+    kind.param_names()
+        .iter()
+        .zip(iv)
+        .take(if kind == EffectKind::FrictionPatch {
+            1
+        } else {
+            iv.len()
+        })
+        .map(|(n, b)| format!("{n} {:.4} to {:.4}", b[0], b[1]))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The report in plain words: what was found, how sure, what to change on the car, what
+/// to drive next, where the model and the car part.
+pub fn to_markdown(a: &Analysis, rec: &Recording) -> String {
+    to_markdown_with(a, rec, None)
+}
+
+/// [`to_markdown`] with the VESC corrections (`report.json`'s `vesc`) when known.
+pub fn to_markdown_with(a: &Analysis, rec: &Recording, vesc: Option<&Value>) -> String {
+    let mut s = String::new();
+    let kept: Vec<&crate::analysis::CandidateResult> =
+        a.candidates.iter().filter(|c| c.selected).collect();
+    let _ = writeln!(s, "# Reality-gap report\n");
+    let _ = writeln!(s, "## In short\n");
+    if kept.is_empty() {
         let _ = writeln!(
             s,
             "Nothing significant. No candidate effect improved the held-out data by more than \
@@ -91,51 +217,194 @@ pub fn to_markdown(a: &Analysis, rec: &Recording) -> String {
     } else {
         let _ = writeln!(
             s,
-            "The data support these effects (each improved the held-out residual by more than \
-             its parameters buy, in separate time blocks, and made no block worse):\n"
+            "The simulator misses {} effect{} (each lowered the error on held-out data by more \
+             than its parameters buy, in separate {}, and made none worse beyond noise):\n",
+            kept.len(),
+            if kept.len() == 1 { "" } else { "s" },
+            if a.heldout_runs {
+                "groups of runs"
+            } else {
+                "time blocks"
+            }
         );
-        for c in a.candidates.iter().filter(|c| c.selected) {
+        for c in &kept {
+            let k = c.evidence.kind;
             let _ = writeln!(
                 s,
-                "- **{}** {}: held-out residual {:.1} % lower when it was added.",
-                c.evidence.kind.name(),
-                c.evidence.kind.params_json(&c.values),
+                "- **{}**: {}. Fitted {}{}; held-out error {:.1} % lower.",
+                k.name(),
+                reading(a, k, &c.values),
+                k.params_json(&c.values),
+                c.interval
+                    .as_ref()
+                    .map(|iv| format!(" (likely range: {})", fmt_range(k, iv)))
+                    .unwrap_or_default(),
                 100.0 * c.evidence.gain
             );
         }
         let _ = writeln!(s);
     }
-    let _ = writeln!(s, "Candidates that were tested and not kept:\n");
-    for c in a.candidates.iter().filter(|c| !c.selected) {
-        let e = &c.evidence;
+    let above = above_noise(a);
+    if !above.is_empty() {
         let _ = writeln!(
             s,
-            "- {}: best fit {} changed the held-out residual by {:+.1} % (a kept effect must lower it by more than {:.1} %, in at least 2 of {} blocks and raise it in none; this one lowered it in {}, raised it in {}).",
-            e.kind.name(),
-            e.kind.params_json(&c.values),
-            -100.0 * e.gain,
-            100.0 * e.margin,
-            e.heldout_base.len(),
-            e.folds_improved,
-            e.folds_worse
+            "Note: the fitted model stays above the estimated noise floor in {} (more than 1.5 \
+             times the noise): something the candidates do not cover remains, or the car was \
+             pushed about by disturbances.\n",
+            above.join(", ")
         );
     }
-    let _ = writeln!(s, "\n## How much better the fitted model is\n");
+
+    let _ = writeln!(s, "## The data\n");
+    let runs = rec.runs();
+    let moving = runs
+        .iter()
+        .filter(|r| rec.states[r.first_state].vx.abs() > 0.3)
+        .count();
     let _ = writeln!(
         s,
-        "Root-mean-square error on held-out data ({}-fold over time blocks), nominal model vs fitted model, \
-         with the measurement noise estimated from the recording:\n",
-        a.folds
+        "{} run{}, {:.1} s in all ({} starting in motion), {} state samples, {} commands. The \
+         recorded commands were replayed through the simulator in {} s windows, each started \
+         from the recorded state.",
+        runs.len(),
+        if runs.len() == 1 { "" } else { "s" },
+        rec.total_duration(),
+        moving,
+        rec.states.len(),
+        rec.commands.len(),
+        a.window_s
+    );
+    let missing = missing_names(rec);
+    if !missing.is_empty() {
+        let _ = writeln!(
+            s,
+            "Not measured: {}; the fit uses the channels present, and the replay carries \
+             the unmeasured velocities on from the model (derived from the pose where a run starts).",
+            missing.join(", ")
+        );
+    }
+    let _ = writeln!(s);
+    for w in &rec.warnings {
+        let _ = writeln!(s, "Warning: {w}\n");
+    }
+
+    let _ = writeln!(s, "## What to change on the car\n");
+    if kept.is_empty() {
+        let _ = writeln!(s, "Nothing: the nominal vehicle stands.\n");
+    } else {
+        let _ = writeln!(
+            s,
+            "`vehicle.yaml` is the nominal vehicle with the effects above; the simulator loads \
+             it as it is."
+        );
+        for c in &kept {
+            match c.evidence.kind {
+                EffectKind::MeasurementDelay => {
+                    let _ = writeln!(
+                        s,
+                        "- The pose arrives {:.0} ms late: give the localiser's latency to the policy (or compensate it); it is not in `vehicle.yaml`.",
+                        1e3 * c.values[0]
+                    );
+                }
+                EffectKind::SteeringBacklash => {
+                    let _ = writeln!(
+                        s,
+                        "- The steering linkage has play: tighten it, or keep `steering_backlash` in the simulator."
+                    );
+                }
+                _ => {}
+            }
+        }
+        match vesc {
+            Some(v) if v.as_object().is_some_and(|m| !m.is_empty()) => {
+                let _ = writeln!(
+                    s,
+                    "\nIn the VESC driver's `vesc.yaml`:\n\n| key | now | set to |\n|---|---|---|"
+                );
+                if let Some(m) = v.as_object() {
+                    for (k, x) in m {
+                        let _ = writeln!(s, "| {k} | {} | {} |", x["old"], x["new"]);
+                    }
+                }
+            }
+            Some(_) => {
+                let _ = writeln!(
+                    s,
+                    "\nThe VESC calibration (`vesc.yaml`) needs no change for these effects."
+                );
+            }
+            None => {}
+        }
+        let _ = writeln!(s);
+    }
+
+    let _ = writeln!(s, "## How sure\n");
+    let _ = writeln!(
+        s,
+        "Error on held-out data ({}-fold over {}, each predicted by a model fitted without it), \
+         nominal vs fitted, and the measurement noise estimated from the recording itself:\n",
+        a.folds,
+        if a.heldout_runs {
+            "whole runs"
+        } else {
+            "contiguous time blocks"
+        }
     );
     let _ = writeln!(s, "| channel | nominal | fitted | noise |");
     let _ = writeln!(s, "|---|---|---|---|");
     for (c, name) in CHANNELS.iter().enumerate() {
+        if a.rmse_before[c].is_finite() {
+            let _ = writeln!(
+                s,
+                "| {} | {:.4} | {:.4} | {:.4} |",
+                name, a.rmse_before[c], a.rmse_after[c], a.noise_floor[c]
+            );
+        } else {
+            let _ = writeln!(s, "| {name} | not measured | | |");
+        }
+    }
+    let _ = writeln!(s, "\nTested and not kept:\n");
+    for c in a.candidates.iter().filter(|c| !c.selected) {
+        let e = &c.evidence;
+        let range = c
+            .could_be
+            .map(|b| {
+                format!(
+                    "not detected; {} could be anywhere in [{:.4}, {:.4}] without these data telling. ",
+                    e.kind.param_names()[0],
+                    b[0],
+                    b[1]
+                )
+            })
+            .unwrap_or_else(|| "not detected. ".into());
         let _ = writeln!(
             s,
-            "| {} | {:.4} | {:.4} | {:.4} |",
-            name, a.rmse_before[c], a.rmse_after[c], a.noise_floor[c]
+            "- {}: {}Best fit {} changed the held-out error by {:+.1} % (needs below -{:.1} %, better in 2 of {} {} and worse beyond noise in none; this one: better in {}, worse in {}).",
+            e.kind.name(),
+            range,
+            e.kind.params_json(&c.evidence.values),
+            -100.0 * e.gain,
+            100.0 * e.margin,
+            e.heldout_base.len(),
+            if a.heldout_runs { "groups" } else { "blocks" },
+            e.folds_improved,
+            e.folds_worse
         );
     }
+
+    let _ = writeln!(s, "\n## What to drive next\n");
+    if a.not_identifiable.is_empty() {
+        let _ = writeln!(s, "These data exercise every candidate effect.");
+    } else {
+        let _ = writeln!(
+            s,
+            "These data cannot identify some effects (a \"not detected\" above means little for them):\n"
+        );
+        for (k, why) in &a.not_identifiable {
+            let _ = writeln!(s, "- {}: {why}.", k.name());
+        }
+    }
+
     let _ = writeln!(s, "\n## Where the nominal model and the recording part\n");
     if a.located.mismatch.is_empty() {
         let _ = writeln!(
@@ -149,16 +418,28 @@ pub fn to_markdown(a: &Analysis, rec: &Recording) -> String {
         );
         for g in &a.located.mismatch {
             let what = match g.kind {
-                "time" => format!("from {:.1} s to {:.1} s", g.range[0], g.range[1]),
+                "time" => {
+                    let (run, t) = rec.run_at(g.range[0]);
+                    if runs.len() > 1 {
+                        format!("in {run} from {:.1} s", t)
+                    } else {
+                        format!("from {:.1} s to {:.1} s", g.range[0], g.range[1])
+                    }
+                }
                 "regime" => format!("{} in [{}, {})", g.label, g.range[0], g.range[1]),
                 _ => format!(
                     "the box x [{:.1}, {:.1}] m, y [{:.1}, {:.1}] m",
                     g.range[0], g.range[2], g.range[1], g.range[3]
                 ),
             };
+            let why = match explained_by(a, g) {
+                Some(k) => format!("; explained by {k}"),
+                None if kept.is_empty() => String::new(),
+                None => "; not explained by the fitted model".into(),
+            };
             let _ = writeln!(
                 s,
-                "- {} {}: ratio {:.2}, {:.0} % of the total residual ({} samples)",
+                "- {} {}: ratio {:.2}, {:.0} % of the total residual ({} samples){why}",
                 g.kind,
                 what,
                 g.ratio,
@@ -167,26 +448,50 @@ pub fn to_markdown(a: &Analysis, rec: &Recording) -> String {
             );
         }
     }
-    let _ = writeln!(
-        s,
-        "\n`vehicle.yaml` holds the fitted model; the simulator loads it as it is.\n\nAnalysis took {:.1} s.",
-        a.seconds
-    );
+    let _ = writeln!(s, "\nAnalysis took {:.1} s.", a.seconds);
     s
 }
 
 /// Write `report.json`, `report.md` and `vehicle.yaml` into `dir`.
 pub fn write(dir: &Path, a: &Analysis, rec: &Recording) -> Result<(), SysidError> {
+    write_with(dir, a, rec, None)
+}
+
+/// [`write`], with the VESC driver's parameters (`vesc.yaml`) to correct.
+pub fn write_with(
+    dir: &Path,
+    a: &Analysis,
+    rec: &Recording,
+    vesc_params: Option<&[(String, f64)]>,
+) -> Result<(), SysidError> {
     let io = |p: &Path, e: std::io::Error| SysidError::Io {
         path: p.display().to_string(),
         source: e,
     };
     std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
     let json_path = dir.join("report.json");
-    let text = serde_json::to_string_pretty(&to_json(a, rec)).unwrap_or_default();
+    let vesc = vesc_params.map(|p| {
+        let get = |k: EffectKind| {
+            a.candidates
+                .iter()
+                .find(|c| c.selected && c.evidence.kind == k)
+                .map(|c| c.values[0])
+        };
+        crate::explain::vesc_corrections(
+            p,
+            get(EffectKind::SteeringGain),
+            get(EffectKind::SteeringOffset),
+            get(EffectKind::SpeedGain),
+        )
+    });
+    let mut report = to_json(a, rec);
+    if let Some(v) = &vesc {
+        report["vesc"] = v.clone();
+    }
+    let text = serde_json::to_string_pretty(&report).unwrap_or_default();
     std::fs::write(&json_path, text).map_err(|e| io(&json_path, e))?;
     let md = dir.join("report.md");
-    std::fs::write(&md, to_markdown(a, rec)).map_err(|e| io(&md, e))?;
+    std::fs::write(&md, to_markdown_with(a, rec, vesc.as_ref())).map_err(|e| io(&md, e))?;
     let y = dir.join("vehicle.yaml");
     let yaml = format!(
         "# Fitted by `paddock sysid`: the nominal vehicle plus the effects the recording supports.\n{}",

@@ -29,6 +29,14 @@ impl SteerBuffer {
         out
     }
 
+    /// Full of `cmd`, as after holding it for two steps or more.
+    pub fn filled(cmd: f64) -> Self {
+        Self {
+            cmds: [cmd, cmd],
+            len: 2,
+        }
+    }
+
     /// Commands waiting, newest first.
     pub fn pending(&self) -> &[f64] {
         &self.cmds[..self.len as usize]
@@ -65,6 +73,14 @@ impl DelayLine {
             self.head = 0;
         }
         out
+    }
+
+    /// An `n`-step line full of `value`, as after holding it for `n` steps or more.
+    pub fn fill(&mut self, value: f64, n: usize) {
+        let n = n.min(MAX_DELAY_STEPS);
+        self.ring.clear();
+        self.ring.resize(n, value);
+        self.head = 0;
     }
 
     /// Empty the line (keeps its allocation).

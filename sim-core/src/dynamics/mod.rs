@@ -30,8 +30,9 @@
 //!
 //! Command path, in this order, before the controllers: `steering_delay` (extra whole
 //! steps, a zero-filled ring in front of the 2-step buffer), `steering_lag` and `drive_lag`
-//! (first-order lags, `1 - exp(-dt/tau)` per step), `steering_offset` (added to the
-//! steering target). Inside the right-hand side: `drag` (subtracted from `v'`) and
+//! (first-order lags, `1 - exp(-dt/tau)` per step), `steering_gain` (scales the
+//! steering target), `steering_offset` (added to it), `steering_backlash` (play between it
+//! and the wheel's target); `speed_gain` scales the speed command before `drive_lag`. Inside the right-hand side: `drag` (subtracted from `v'`) and
 //! `tire_saturation` (Pacejka axle forces instead of the linear tire; dynamic branch only).
 //! `friction_patch` picks `mu` once per step from the step-start position.
 //!
@@ -126,6 +127,9 @@ pub struct Vehicle {
     steer_delay: DelayLine,
     steer_lag: f64,
     drive_lag: f64,
+    /// Output of the steering play (`steering_backlash`).
+    #[serde(default)]
+    steer_play: f64,
 }
 
 impl Vehicle {
@@ -137,6 +141,7 @@ impl Vehicle {
             steer_delay: DelayLine::default(),
             steer_lag: 0.0,
             drive_lag: 0.0,
+            steer_play: 0.0,
         }
     }
 
@@ -155,6 +160,47 @@ impl Vehicle {
         self.steer_delay.clear();
         self.steer_lag = 0.0;
         self.drive_lag = 0.0;
+        self.steer_play = 0.0;
+    }
+
+    /// Fill the command path as if `steer_cmd` and `speed_cmd` had been held for a long
+    /// time (a replay that starts in motion): the delay line and the 2-step buffer hold
+    /// the command, the lags sit at their inputs, the play is centred on its input and the
+    /// wheel angle at its target (within the steering limits). Pose, speed, yaw rate and
+    /// slip are untouched.
+    pub fn settle_commands(&mut self, p: &VehicleParams, steer_cmd: f64, speed_cmd: f64, dt: f64) {
+        let fx = &p.effects;
+        let steer = if steer_cmd.is_finite() {
+            steer_cmd
+        } else {
+            0.0
+        };
+        let speed = if speed_cmd.is_finite() {
+            speed_cmd
+        } else {
+            0.0
+        };
+        match fx.steering_delay {
+            Some(d) if dt > 0.0 && (d.delay_s / dt).round() >= 1.0 => self
+                .steer_delay
+                .fill(steer, (d.delay_s / dt).round() as usize),
+            _ => self.steer_delay.clear(),
+        }
+        self.steer_buffer = SteerBuffer::filled(steer);
+        self.steer_lag = steer;
+        let mut target = steer;
+        if let Some(g) = fx.steering_gain {
+            target *= g.gain;
+        }
+        if let Some(o) = fx.steering_offset {
+            target += o.offset_rad;
+        }
+        self.steer_play = target;
+        self.state.steer_angle = target.clamp(p.s_min, p.s_max);
+        self.drive_lag = match fx.speed_gain {
+            Some(g) => speed * g.gain,
+            None => speed,
+        };
     }
 
     /// Pose of the reference point: `(x, y, yaw)`.
@@ -205,7 +251,8 @@ impl Vehicle {
         };
         let fx = &p.effects;
 
-        // Steering command path: extra delay -> reference buffer -> lag -> offset.
+        // Steering command path: extra delay -> reference buffer -> lag -> gain -> offset
+        // -> play.
         let delayed = match fx.steering_delay {
             Some(d) => {
                 let n = (d.delay_s / dt).round();
@@ -223,9 +270,19 @@ impl Vehicle {
         if let Some(l) = fx.steering_lag {
             steer_target = lag_update(&mut self.steer_lag, steer_target, lag_gain(dt, l.tau_s));
         }
+        if let Some(g) = fx.steering_gain {
+            steer_target *= g.gain;
+        }
         if let Some(o) = fx.steering_offset {
             steer_target += o.offset_rad;
         }
+        if let Some(b) = fx.steering_backlash {
+            steer_target = b.update(&mut self.steer_play, steer_target);
+        }
+        let speed_cmd = match fx.speed_gain {
+            Some(g) => speed_cmd * g.gain,
+            None => speed_cmd,
+        };
         let speed_target = match fx.drive_lag {
             Some(l) => lag_update(&mut self.drive_lag, speed_cmd, lag_gain(dt, l.tau_s)),
             None => speed_cmd,

@@ -228,8 +228,9 @@ pub fn linear_st_yaw_slip(x: &StateVec, accl: f64, p: &VehicleParams, mu: f64) -
 /// as CommonRoad ST: `a_f = delta - beta - lf r / v`, `a_r = -beta + lr r / v`.
 ///
 /// `tire = None` is the linear tire `F = mu C_S Fz a`; `Some` is the Pacejka curve
-/// [`pacejka`], whose peak is scaled by `mu / p.mu` so a friction patch lowers the grip
-/// limit as well as the slope.
+/// [`pacejka`] times `mu`: `F = mu Fz D sin(...)` with the slope `C_S` per unit `mu`. One
+/// convention for both tires: `mu` (the vehicle's, a friction patch's, or the `friction`
+/// the reality-gap tool fits) scales the whole lateral force, peak and slope.
 #[inline]
 pub fn lateral_forces(
     x: &StateVec,
@@ -246,13 +247,10 @@ pub fn lateral_forces(
     let a_r = -beta + p.lr * r / v;
     match tire {
         None => (mu * p.c_sf * fz_f * a_f, mu * p.c_sr * fz_r * a_r),
-        Some(t) => {
-            let d = t.d * (mu / p.mu);
-            (
-                fz_f * pacejka(a_f, mu * p.c_sf, d, t.c, t.e),
-                fz_r * pacejka(a_r, mu * p.c_sr, d, t.c, t.e),
-            )
-        }
+        Some(t) => (
+            mu * fz_f * pacejka(a_f, p.c_sf, t.d, t.c, t.e),
+            mu * fz_r * pacejka(a_r, p.c_sr, t.d, t.c, t.e),
+        ),
     }
 }
 

@@ -274,9 +274,31 @@ fn tire_saturation_caps_lateral_acceleration() {
         ..Default::default()
     });
     let saturated = max_lateral_accel(&p);
-    // The total normal load is m g, so the peak is D g (D scaled by mu / p.mu = 1).
-    assert!(saturated <= 9.81 * 1.0 + 1e-9, "{saturated}");
+    // The total normal load is m g, so the peak is mu D g.
+    assert!(saturated <= 9.81 * p.mu * 1.0 + 1e-9, "{saturated}");
+    assert!(saturated > 0.8 * 9.81 * p.mu, "{saturated}");
     assert!(linear > 2.0 * 9.81, "{linear}");
+    // mu scales the whole magic-formula force, as it scales the linear tire: half the mu,
+    // half the peak (the convention `friction` with `tire_saturation` relies on)
+    let half = VehicleParams {
+        mu: 0.5 * p.mu,
+        ..p.clone()
+    };
+    let x = [0.0, 0.0, 0.3, 5.0, 0.0, 0.2, -0.05];
+    let tire = p.effects.tire_saturation.as_ref();
+    for (a, b) in [
+        lateral_forces(&x, 0.0, &p, p.mu, tire),
+        lateral_forces(&x, 0.0, &half, half.mu, tire),
+    ]
+    .windows(2)
+    .map(|w| (w[0], w[1]))
+    {
+        assert!((b.0 - 0.5 * a.0).abs() < 1e-9 * a.0.abs(), "{a:?} {b:?}");
+        assert!(
+            (b.1 - 0.5 * a.1).abs() < 1e-9 * a.1.abs().max(1e-9),
+            "{a:?} {b:?}"
+        );
+    }
 }
 
 #[test]
@@ -409,4 +431,81 @@ fn snapshot_round_trips_through_serde() {
         back.step(&p, 0.2, 5.0, DT);
     }
     assert_eq!(back, car);
+}
+
+#[test]
+fn steering_and_speed_gains_scale_the_targets() {
+    let p = with_effects(Effects {
+        steering_gain: Some(crate::params::SteeringGain { gain: 0.8 }),
+        speed_gain: Some(crate::params::SpeedGain { gain: 1.1 }),
+        ..Default::default()
+    });
+    let s = run(&p, 0.2, 2.0, 400);
+    let last = s.last().unwrap();
+    assert!(
+        (last.steer_angle - 0.16).abs() < 2e-4,
+        "{}",
+        last.steer_angle
+    );
+    assert!((last.v - 2.2).abs() < 1e-3, "{}", last.v);
+    // gain 1 and no play are the reference, bit for bit
+    let unit = with_effects(Effects {
+        steering_gain: Some(crate::params::SteeringGain { gain: 1.0 }),
+        speed_gain: Some(crate::params::SpeedGain { gain: 1.0 }),
+        steering_backlash: Some(crate::params::SteeringBacklash { width_rad: 0.0 }),
+        ..Default::default()
+    });
+    assert_eq!(
+        run(&unit, 0.2, 5.0, 300),
+        run(&VehicleParams::default(), 0.2, 5.0, 300)
+    );
+}
+
+#[test]
+fn steering_backlash_lags_after_a_reversal() {
+    // the wheel chatters within one bang-bang step (sv_max dt = 0.032 rad) of its target
+    let w = 0.1;
+    let tol = 3.2 * DT + 1e-9;
+    let p = with_effects(Effects {
+        steering_backlash: Some(crate::params::SteeringBacklash { width_rad: w }),
+        ..Default::default()
+    });
+    let mut car = Vehicle::new(Pose::default());
+    let mut settle = |cmd: f64| {
+        for _ in 0..300 {
+            car.step(&p, cmd, 1.0, DT);
+        }
+        car.state.steer_angle
+    };
+    let up = settle(0.2);
+    let down = settle(-0.2);
+    let back = settle(0.1);
+    assert!((up - (0.2 - w / 2.0)).abs() <= tol, "{up}");
+    assert!((down - (-0.2 + w / 2.0)).abs() <= tol, "{down}");
+    assert!((back - (0.1 - w / 2.0)).abs() <= tol, "{back}");
+    // inside the band the wheel's target does not move
+    let held = settle(0.1 - w * 0.9);
+    assert!((held - (0.1 - w / 2.0)).abs() <= tol, "{held} vs {back}");
+}
+
+#[test]
+fn settled_commands_hold_a_steady_state() {
+    let p = with_effects(Effects {
+        steering_delay: Some(SteeringDelay { delay_s: 0.05 }),
+        steering_lag: Some(FirstOrderLag { tau_s: 0.1 }),
+        drive_lag: Some(FirstOrderLag { tau_s: 0.3 }),
+        steering_gain: Some(crate::params::SteeringGain { gain: 0.9 }),
+        ..Default::default()
+    });
+    let mut car = Vehicle::with_state(VehicleState {
+        v: 3.0,
+        ..Default::default()
+    });
+    car.settle_commands(&p, 0.1, 3.0, DT);
+    assert!((car.state.steer_angle - 0.09).abs() < 1e-12);
+    for _ in 0..50 {
+        car.step(&p, 0.1, 3.0, DT);
+        assert!((car.state.steer_angle - 0.09).abs() < 2e-4);
+        assert!((car.state.v - 3.0).abs() < 0.05, "{}", car.state.v);
+    }
 }
