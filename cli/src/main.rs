@@ -14,6 +14,7 @@ mod sysid_cmd;
 mod sysid_plots;
 mod sysid_synth;
 mod tune_cmd;
+mod video;
 
 use std::path::PathBuf;
 
