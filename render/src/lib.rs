@@ -389,13 +389,13 @@ impl Renderer {
             ..body
         };
         let px = |pts: [(f64, f64); 4]| pts.map(|(x, y)| self.to_px(x, y));
-        // a faint halo, so a car (a dozen pixels long at 800 pixels) is seen at a glance
-        let halo = (0.9 * car.length * self.scale).max(9.0);
+        // a halo, so a car (a dozen pixels long at 800 pixels) is seen at a glance
+        let halo = (1.1 * car.length * self.scale).max(10.0);
         c.disc(
             self.to_px(car.pose.x, car.pose.y),
             halo,
             colour,
-            0.18 * alpha,
+            0.28 * alpha,
         );
         c.fill_polygon(&px(outline.corners()), INK, alpha);
         c.fill_polygon(&px(body.corners()), colour, alpha);

@@ -61,12 +61,7 @@ impl<'a> Replay<'a> {
             })
             .collect();
         let drivers: Vec<&str> = scenario.agents.iter().map(|a| a.driver.as_str()).collect();
-        let caption = format!(
-            "{} · {} · seed {}",
-            circuit.name,
-            drivers.join(" vs "),
-            episode.seed
-        );
+        let caption = format!("{} · {}", circuit.name, drivers.join(" vs "));
         Ok(Self {
             scenario,
             episode,
