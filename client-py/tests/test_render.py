@@ -205,3 +205,15 @@ def test_cli_writes_mp4_through_ffmpeg(tmp_path: Path) -> None:
     assert "Video:" in probe.stderr and "320x" in probe.stderr, probe.stderr
     assert out.stat().st_size > 5_000
     assert shutil.which("ffmpeg", path=env["PATH"])
+
+
+def test_cli_video_through_the_broker_is_the_local_video(endpoint: str, tmp_path: Path) -> None:
+    args = ["rollout", "--episodes", "1", "--seed", "9", "--time-limit", "2",
+            "--video-width", "320"]
+    local, remote = tmp_path / "local.gif", tmp_path / "remote.gif"
+    subprocess.run([find_paddock(), *args, "--video", str(local)], check=True,
+                   capture_output=True, timeout=300)
+    subprocess.run([find_paddock(), *args, "--endpoint", endpoint, "--video", str(remote)],
+                   check=True, capture_output=True, timeout=300)
+    assert local.read_bytes() == remote.read_bytes()
+    assert local.stat().st_size > 1_000
