@@ -278,19 +278,37 @@ impl Renderer {
     fn draw_background(&mut self, circuit: &Circuit) {
         let map = &circuit.map;
         let (w, h) = (self.background.width, self.background.height);
-        // walls: the occupancy grid sampled 3 x 3 per pixel, blended by coverage
-        for py in self.hud..h {
+        // walls: the occupancy grid at each pixel's centre; where a pixel or one of its
+        // neighbours differs (an edge), sampled 3 x 3 and blended by coverage
+        let rows = h - self.hud;
+        let mut centre = vec![false; w * rows];
+        for (k, cell) in centre.iter_mut().enumerate() {
+            let (px, py) = ((k % w) as f64 + 0.5, (k / w + self.hud) as f64 + 0.5);
+            let (x, y) = self.to_world(px, py);
+            *cell = map.occupied_at(x, y);
+        }
+        for row in 0..rows {
             for px in 0..w {
-                let mut hits = 0u32;
-                for sy in 0..3 {
-                    for sx in 0..3 {
-                        let (x, y) = self.to_world(
-                            px as f64 + (f64::from(sx) + 0.5) / 3.0,
-                            py as f64 + (f64::from(sy) + 0.5) / 3.0,
-                        );
-                        hits += u32::from(map.occupied_at(x, y));
+                let here = centre[row * w + px];
+                let uniform = (row.saturating_sub(1)..(row + 2).min(rows)).all(|r| {
+                    (px.saturating_sub(1)..(px + 2).min(w)).all(|c| centre[r * w + c] == here)
+                });
+                let py = row + self.hud;
+                let hits = if uniform {
+                    9 * u32::from(here)
+                } else {
+                    let mut hits = 0u32;
+                    for sy in 0..3 {
+                        for sx in 0..3 {
+                            let (x, y) = self.to_world(
+                                px as f64 + (f64::from(sx) + 0.5) / 3.0,
+                                py as f64 + (f64::from(sy) + 0.5) / 3.0,
+                            );
+                            hits += u32::from(map.occupied_at(x, y));
+                        }
                     }
-                }
+                    hits
+                };
                 if hits > 0 {
                     self.background.blend(px, py, WALL, f64::from(hits) / 9.0);
                 }
