@@ -323,6 +323,12 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     let task_name = args.task.to_string().to_lowercase();
     let video_name = |k: usize| format!("{task_name}-{k:03}.{}", args.video_format);
     if let Some(dir) = &args.video {
+        if !["gif", "mp4", "webm", "mkv", "mov"].contains(&args.video_format.as_str()) {
+            bail!(
+                "--video-format {}: must be gif, or mp4, webm, mkv or mov (encoded by ffmpeg)",
+                args.video_format
+            );
+        }
         crate::video::check_encoder(&dir.join(video_name(0)))?;
         let decimation = args.video_opts.decimation()?;
         for t in &mut tasks {

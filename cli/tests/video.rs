@@ -167,6 +167,11 @@ fn video_flags_are_checked_before_anything_runs() {
         ],
         "--video-episode 2",
     );
+    let d = dir.path().to_str().unwrap();
+    bad(
+        &["benchmark", "b3", "--video-format", "avi", "--video", d],
+        "--video-format avi",
+    );
     let ffmpeg = Command::new("ffmpeg").arg("-version").output().is_ok();
     if !ffmpeg {
         let mp4 = dir.path().join("a.mp4");
