@@ -64,12 +64,14 @@ def test_rgb_array_frames_are_the_same_bytes_local_and_remote(endpoint: str) -> 
     assert red >= 15 and blue >= 15, (red, blue)
 
 
-def test_gymnasium_render_checks_pass(endpoint: str) -> None:
+def test_gymnasium_render_checks_pass(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    # check_env also makes the env in every declared mode: the human window off-screen
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     env = gym.make("paddock/F110-v0", endpoint=endpoint, render_mode="rgb_array", **SMALL)
     try:
         assert "rgb_array" in env.metadata["render_modes"]
         assert env.metadata["render_fps"] == 100
-        check_env(env.unwrapped)  # render checks included
+        check_env(env.unwrapped)  # render checks included, rgb_array and human
     finally:
         env.close()
     env = gym.make("paddock/F110-v0", endpoint=endpoint, render_mode="rgb_array",
