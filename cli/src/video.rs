@@ -33,7 +33,7 @@ pub struct VideoOptions {
     /// 25, 50 or 100).
     #[arg(long, default_value_t = 25, value_name = "N")]
     pub fps: u32,
-    /// Video frame width in pixels (160..=2048); the height follows the track's shape.
+    /// Video frame width in pixels (even, 160..=2048); the height follows the track's shape.
     #[arg(long, default_value_t = paddock_render::DEFAULT_WIDTH, value_name = "PX")]
     pub video_width: u32,
 }
@@ -53,6 +53,12 @@ impl VideoOptions {
                 self.video_width,
                 paddock_render::MIN_WIDTH,
                 paddock_render::MAX_WIDTH
+            );
+        }
+        if !self.video_width.is_multiple_of(2) {
+            bail!(
+                "--video-width {}: must be even (video encoders take even sizes)",
+                self.video_width
             );
         }
         Ok(STEPS_PER_S / self.fps)
@@ -427,6 +433,11 @@ mod tests {
         };
         assert_eq!(opts(25).decimation().unwrap(), 4);
         assert_eq!(opts(100).decimation().unwrap(), 1);
+        let odd = VideoOptions {
+            fps: 25,
+            video_width: 801,
+        };
+        assert!(odd.decimation().unwrap_err().to_string().contains("even"));
         for bad in [0, 3, 30, 200] {
             let e = opts(bad).decimation().unwrap_err().to_string();
             assert!(e.starts_with(&format!("--fps {bad}:")), "{e}");
