@@ -15,6 +15,7 @@ mod sysid_plots;
 mod sysid_synth;
 mod sysid_synth_runs;
 mod tune_cmd;
+mod video;
 
 use std::path::PathBuf;
 

@@ -1,7 +1,7 @@
 //! PNG plots: convergence curves and a lap drawn on the map coloured by speed.
 //!
 //! plotters draws into an RGB buffer (its bitmap backend, no system fonts: the DejaVu
-//! Sans face ships in `cli/assets`), and the `image` crate encodes the PNG.
+//! Sans face compiled into `paddock-render`), and the `image` crate encodes the PNG.
 
 use std::path::Path;
 use std::sync::Once;
@@ -12,7 +12,7 @@ use plotters::style::{FontStyle, register_font};
 
 use paddock_sim::track::Circuit;
 
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+static FONT: &[u8] = paddock_render::FONT_TTF;
 
 /// Registers the shipped sans-serif face with plotters (once per process).
 pub(crate) fn fonts() {

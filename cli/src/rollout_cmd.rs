@@ -1,6 +1,7 @@
 //! `paddock rollout` and `paddock benchmark`: batches of episodes run locally on all
 //! cores, or through a broker with `--endpoint`.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
@@ -12,6 +13,8 @@ use paddock_rollout::{
     AgentSpec, EpisodeResult, EpisodeTask, Executor, RolloutError, Scenario, task_seed,
 };
 use paddock_sim::track::DEFAULT_MAP;
+
+use crate::video::VideoOptions;
 
 /// Parse `--params`: either `name=value,name=value` (others keep their defaults) or a
 /// full comma-separated vector in the driver's parameter order.
@@ -105,6 +108,15 @@ pub struct RolloutArgs {
     trajectory: Option<u32>,
     #[arg(long)]
     json: bool,
+    /// Write a top-down video of one episode (--video-episode) to this file: .gif, or
+    /// .mp4 / .webm / .mkv / .mov with ffmpeg on PATH.
+    #[arg(long, value_name = "FILE")]
+    video: Option<PathBuf>,
+    /// The episode --video shows (0-based).
+    #[arg(long, default_value_t = 0, value_name = "K")]
+    video_episode: usize,
+    #[command(flatten)]
+    video_opts: VideoOptions,
 }
 
 pub fn rollout(args: &RolloutArgs) -> Result<()> {
@@ -120,18 +132,35 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         bail!("--episodes must be at least 1");
     }
     let scenario = Arc::new(scenario);
-    let tasks: Vec<EpisodeTask> = (0..args.episodes)
+    let mut tasks: Vec<EpisodeTask> = (0..args.episodes)
         .map(|k| EpisodeTask {
             scenario: scenario.clone(),
             seed: task_seed(args.seed, k as u64),
             record: args.trajectory.map(|n| n.max(1)),
         })
         .collect();
+    if let Some(path) = &args.video {
+        if args.video_episode >= args.episodes {
+            bail!(
+                "--video-episode {}: there are {} episodes (0..{})",
+                args.video_episode,
+                args.episodes,
+                args.episodes
+            );
+        }
+        crate::video::check_encoder(path)?;
+        tasks[args.video_episode].record = Some(args.video_opts.decimation()?);
+    }
     let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
     let results = run_tasks(exec.as_ref(), &tasks, "rollout");
     let mut episodes = Vec::with_capacity(results.len());
     for (k, r) in results.into_iter().enumerate() {
         episodes.push(r.with_context(|| format!("episode {k}"))?);
+    }
+    if let Some(path) = &args.video {
+        let jobs = [(path.clone(), &*scenario, &episodes[args.video_episode])];
+        crate::video::write_episodes(&jobs, &args.video_opts)?;
+        eprintln!("wrote {}", path.display());
     }
     let laps: Vec<f64> = episodes
         .iter()
@@ -256,6 +285,15 @@ pub struct BenchmarkArgs {
     /// Print only the markdown table's row (to assemble a table of many runs).
     #[arg(long)]
     markdown_row: bool,
+    /// Write a top-down video of every episode into this directory
+    /// (`<task>-<episode>.<format>`; B3: the head-to-head races).
+    #[arg(long, value_name = "DIR")]
+    video: Option<PathBuf>,
+    /// The videos' format: gif, or mp4 / webm / mkv / mov with ffmpeg on PATH.
+    #[arg(long, default_value = "gif", value_name = "EXT")]
+    video_format: String,
+    #[command(flatten)]
+    video_opts: VideoOptions,
 }
 
 pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
@@ -281,11 +319,41 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
         obstacles: args.obstacles,
         time_limit: args.time_limit,
     };
-    let tasks = spec.tasks()?;
+    let mut tasks = spec.tasks()?;
+    let task_name = args.task.to_string().to_lowercase();
+    let video_name = |k: usize| format!("{task_name}-{k:03}.{}", args.video_format);
+    if let Some(dir) = &args.video {
+        if !["gif", "mp4", "webm", "mkv", "mov"].contains(&args.video_format.as_str()) {
+            bail!(
+                "--video-format {}: must be gif, or mp4, webm, mkv or mov (encoded by ffmpeg)",
+                args.video_format
+            );
+        }
+        crate::video::check_encoder(&dir.join(video_name(0)))?;
+        let decimation = args.video_opts.decimation()?;
+        for t in &mut tasks {
+            t.record = Some(decimation);
+        }
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
     let results = run_tasks(exec.as_ref(), &tasks, &format!("benchmark {}", args.task));
     if let Some(Err(e)) = results.iter().find(|r| r.is_err()) {
         bail!("an episode failed: {e}");
+    }
+    if let Some(dir) = &args.video {
+        let jobs: Vec<_> = tasks
+            .iter()
+            .zip(&results)
+            .enumerate()
+            .filter_map(|(k, (t, r))| {
+                r.as_ref()
+                    .ok()
+                    .map(|e| (dir.join(video_name(k)), &*t.scenario, e))
+            })
+            .collect();
+        crate::video::write_episodes(&jobs, &args.video_opts)?;
+        eprintln!("wrote {} videos into {}", jobs.len(), dir.display());
     }
     let report = paddock_rollout::benchmark::report(&spec, &results);
     if args.json {

@@ -30,6 +30,7 @@ from gymnasium.vector.utils import batch_space
 
 from . import errors, wire
 from ._proto import paddock_pb2 as pb
+from .render import DEFAULT_WIDTH, RENDER_MODES, Window, frames_of
 from .server import LocalServer
 from .transport import Connection
 
@@ -132,6 +133,7 @@ class EnvSession:
         self.action_low = np.array(opened.action_low, dtype=np.float32)
         self.action_high = np.array(opened.action_high, dtype=np.float32)
         self.dt = opened.dt
+        self.frame_skip = int(frame_skip)
         self.max_range = float(max_range)
         self.closed = False
 
@@ -170,6 +172,14 @@ class EnvSession:
         msg = pb.EnvStep(session_id=self.session_id, actions=a.tobytes(),
                          reset_envs=[int(i) for i in reset_envs])
         return self._frame(self.conn.request("env_step", msg, "env_observation"))
+
+    def render(self, envs: Sequence[int] | None = None, width: int = DEFAULT_WIDTH) -> np.ndarray:
+        """Top-down frames of ``envs`` (default: env 0) as they are now, shape
+        (len(envs), height, width, 3) uint8; the session is not changed."""
+        envs = [0] if envs is None else [int(i) for i in envs]
+        msg = pb.EnvRender(session_id=self.session_id, envs=envs, width=int(width))
+        image = self.conn.request("env_render", msg, "env_image")
+        return frames_of(image, len(envs))
 
     def close(self) -> None:
         if self.closed:
@@ -215,18 +225,41 @@ class _Owned:
             self.server.stop()
 
 
+def _check_render_mode(mode: str | None, allowed: list[str]) -> None:
+    if mode is not None and mode not in allowed:
+        raise ValueError(f"render_mode = {mode!r} is not one of {allowed} (or None)")
+
+
+def _render_fps(frame_skip: int) -> int | float:
+    """Env steps per simulated second (0.01 s physics steps, ``frame_skip`` per env step)."""
+    return 100 // frame_skip if 100 % frame_skip == 0 else 100 / frame_skip
+
+
 class F110Env(gym.Env):
     """One F1TENTH environment stepped on a Paddock worker.
 
     ``endpoint``: a broker's client endpoint (``tcp://HOST:PORT``), or None to start a
     local ``paddock serve`` that :meth:`close` stops. Other arguments: see
     :class:`EnvSession`. ``reset(options={"poses": [[x, y, theta], ...]})`` places the cars.
+
+    ``render_mode="rgb_array"``: :meth:`render` returns a top-down frame (height, width, 3)
+    uint8 of the map, the driving line, every car with its heading, car 0's LIDAR scan and
+    a lap and time overlay, ``render_width`` pixels wide. ``render_mode="human"`` shows it
+    in a window after every reset and step (needs ``pip install "paddock[human]"``).
+    ``metadata["render_fps"]`` is the env's steps per simulated second.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": RENDER_MODES, "render_fps": 100}
 
     def __init__(self, endpoint: str | None = None, *, timeout: float = 30.0, threads: int = 0,
+                 render_mode: str | None = None, render_width: int = DEFAULT_WIDTH,
                  **kwargs: Any) -> None:
+        _check_render_mode(render_mode, RENDER_MODES)
+        self.render_mode = render_mode
+        self.render_width = int(render_width)
+        self._window: Window | None = None
+        if render_mode == "human":
+            self._window = Window(_render_fps(int(kwargs.get("frame_skip", 1))))
         self._owned = _Owned(endpoint, timeout, threads)
         try:
             self.session = EnvSession(self._owned.conn, 1, **kwargs)
@@ -234,6 +267,7 @@ class F110Env(gym.Env):
             self._owned.close()
             raise
         self.observation_space, self.action_space = self.session.spaces()
+        self.metadata = {**type(self).metadata, "render_fps": _render_fps(self.session.frame_skip)}
         self._needs_reset = True
 
     def _single(self, f: Frame) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -248,6 +282,8 @@ class F110Env(gym.Env):
         poses = None if not options or options.get("poses") is None else np.asarray(options["poses"])
         f = self.session.reset(seeds=[seed] if seed is not None else None, poses=poses)
         self._needs_reset = False
+        if self.render_mode == "human":
+            self.render()
         return self._single(f)
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
@@ -258,9 +294,27 @@ class F110Env(gym.Env):
             raise ValueError(f"action must be [steer, speed] (shape (2,)), got shape {a.shape}")
         f = self.session.step(a.reshape(1, 2))
         obs, info = self._single(f)
+        if self.render_mode == "human":
+            self.render()
         return obs, float(f.rewards[0]), bool(f.terminated[0]), bool(f.truncated[0]), info
 
+    def render(self) -> np.ndarray | None:
+        """The frame of the env as it is now (``rgb_array``), or show it (``human``)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode="
+                            "\"rgb_array\" or \"human\" to gymnasium.make")
+            return None
+        frame = self.session.render([0], self.render_width)[0]
+        if self.render_mode == "rgb_array":
+            return frame
+        assert self._window is not None
+        self._window.show(frame)
+        return None
+
     def close(self) -> None:
+        if getattr(self, "_window", None) is not None:
+            self._window.close()
+            self._window = None
         if getattr(self, "session", None) is not None:
             self.session.close()
         if getattr(self, "_owned", None) is not None:
@@ -274,12 +328,20 @@ class F110VectorEnv(VectorEnv):
     Autoreset is NEXT_STEP (declared in ``metadata["autoreset_mode"]``): the step after
     an env terminated or truncated resets it (reward 0, flags false) instead of stepping
     it, in the same round trip. ``reset(seed=s)`` seeds env i with ``s + i``.
+
+    ``render_mode="rgb_array"``: :meth:`render` returns one frame per env (a tuple of
+    (height, width, 3) uint8 arrays), ``render_width`` pixels wide.
     """
 
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100,
+                "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int, endpoint: str | None = None, *, timeout: float = 30.0,
-                 threads: int = 0, **kwargs: Any) -> None:
+                 threads: int = 0, render_mode: str | None = None,
+                 render_width: int = DEFAULT_WIDTH, **kwargs: Any) -> None:
+        _check_render_mode(render_mode, ["rgb_array"])
+        self.render_mode = render_mode
+        self.render_width = int(render_width)
         self._owned = _Owned(endpoint, timeout, threads)
         try:
             self.session = EnvSession(self._owned.conn, num_envs, **kwargs)
@@ -292,6 +354,7 @@ class F110VectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._needs_reset = True
+        self.metadata = {**type(self).metadata, "render_fps": _render_fps(self.session.frame_skip)}
 
     def reset(self, *, seed: int | Sequence[int] | None = None,
               options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -335,6 +398,21 @@ class F110VectorEnv(VectorEnv):
         f = self.session.step(a, reset_envs=np.flatnonzero(self._autoreset).tolist())
         self._autoreset = f.terminated | f.truncated
         return f.obs(), f.rewards, f.terminated, f.truncated, f.info()
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """One frame per env (``rgb_array``), fetched in as few replies as the worker's
+        reply size bound (32 MiB of frames) allows."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass "
+                            "render_mode=\"rgb_array\" to gymnasium.make_vec")
+            return None
+        first = self.session.render([0], self.render_width)
+        per_reply = max(1, (32 << 20) // first[0].nbytes)
+        frames = [first[0]]
+        for start in range(1, self.num_envs, per_reply):
+            envs = list(range(start, min(start + per_reply, self.num_envs)))
+            frames.extend(self.session.render(envs, self.render_width))
+        return tuple(frames)
 
     def close_extras(self, **kwargs: Any) -> None:
         if getattr(self, "session", None) is not None:

@@ -137,6 +137,8 @@ pub fn body_name(body: &Body) -> &'static str {
         Body::EnvObservation(_) => "env_observation",
         Body::EnvClose(_) => "env_close",
         Body::EnvClosed(_) => "env_closed",
+        Body::EnvRender(_) => "env_render",
+        Body::EnvImage(_) => "env_image",
         Body::JobSubmit(_) => "job_submit",
         Body::JobInfo(_) => "job_info",
         Body::JobStatus(_) => "job_status",

@@ -1,5 +1,7 @@
 //! Running one episode.
 
+use std::sync::Arc;
+
 use paddock_policy::build_driver;
 use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, AgentConfig, AgentStatus, Starts, World, WorldConfig};
@@ -66,6 +68,46 @@ pub struct EpisodeResult {
     pub trajectory: Option<Trajectory>,
 }
 
+/// The world of episode `seed` of `scenario` at its start (cars and obstacles placed),
+/// as [`run_episode`] steps it; `scans[i]`: whether car `i` has a LIDAR. Replays of a
+/// recorded episode (videos) rebuild its obstacles from this.
+pub fn episode_world(
+    scenario: &Scenario,
+    circuit: Arc<Circuit>,
+    seed: u64,
+    scans: &[bool],
+) -> Result<World, RolloutError> {
+    let config = WorldConfig {
+        dt: 0.01,
+        lidar: scenario.lidar.clone(),
+        collision_mode: scenario.collision_mode,
+        agents: scenario
+            .agents
+            .iter()
+            .enumerate()
+            .map(|(i, a)| AgentConfig {
+                params: a.vehicle.clone(),
+                scan: scans.get(i).copied().unwrap_or(false),
+            })
+            .collect(),
+        obstacles: scenario.obstacles.clone(),
+        laps: Some(scenario.laps),
+    };
+    let mut world = World::new(circuit, config)?;
+    let starts = match &scenario.starts {
+        StartSpec::Random => Starts::Random,
+        StartSpec::Poses(p) => Starts::Poses(p.clone()),
+        StartSpec::RandomReversed => {
+            // the same random grid as `Random`, with the cars in reverse slot order
+            let mut poses = world.start_poses_for(seed, &Starts::Random)?;
+            poses.reverse();
+            Starts::Poses(poses)
+        }
+    };
+    world.reset(seed, &starts)?;
+    Ok(world)
+}
+
 /// Run one episode of `scenario` with `seed`; record the trajectory every `record`
 /// steps if given.
 pub fn run_episode(
@@ -81,35 +123,9 @@ pub fn run_episode(
             .map_err(|source| RolloutError::Driver { agent: i, source })?;
         drivers.push(d);
     }
-    let config = WorldConfig {
-        dt: 0.01,
-        lidar: scenario.lidar.clone(),
-        collision_mode: scenario.collision_mode,
-        agents: scenario
-            .agents
-            .iter()
-            .zip(&drivers)
-            .map(|(a, d)| AgentConfig {
-                params: a.vehicle.clone(),
-                scan: d.sensors().lidar,
-            })
-            .collect(),
-        obstacles: scenario.obstacles.clone(),
-        laps: Some(scenario.laps),
-    };
+    let scans: Vec<bool> = drivers.iter().map(|d| d.sensors().lidar).collect();
+    let mut world = episode_world(scenario, circuit.clone(), seed, &scans)?;
     let n = scenario.agents.len();
-    let mut world = World::new(circuit.clone(), config)?;
-    let starts = match &scenario.starts {
-        StartSpec::Random => Starts::Random,
-        StartSpec::Poses(p) => Starts::Poses(p.clone()),
-        StartSpec::RandomReversed => {
-            // the same random grid as `Random`, with the cars in reverse slot order
-            let mut poses = world.start_poses_for(seed, &Starts::Random)?;
-            poses.reverse();
-            Starts::Poses(poses)
-        }
-    };
-    world.reset(seed, &starts)?;
     for d in &mut drivers {
         d.reset();
     }

@@ -18,7 +18,9 @@ mod executor;
 mod scenario;
 pub mod tune_job;
 
-pub use episode::{AgentResult, AgentTrace, EpisodeResult, Termination, Trajectory, run_episode};
+pub use episode::{
+    AgentResult, AgentTrace, EpisodeResult, Termination, Trajectory, episode_world, run_episode,
+};
 pub use executor::{EpisodeTask, Executor, LocalExecutor};
 pub use scenario::{AgentSpec, Scenario, StartSpec};
 

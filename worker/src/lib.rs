@@ -31,6 +31,7 @@
 
 pub mod liveness;
 pub mod maps;
+pub mod render;
 pub mod sessions;
 
 use std::collections::{HashMap, HashSet};
@@ -480,7 +481,7 @@ impl Worker {
                 }
                 None => self.on_env(sock, request_id, Body::EnvOpen(o)),
             },
-            b @ (Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_)) => {
+            b @ (Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_) | Body::EnvRender(_)) => {
                 self.on_env(sock, request_id, b);
             }
             other => {

@@ -1,7 +1,7 @@
 //! Interactive env sessions hosted by this worker.
 //!
-//! The worker's message loop hands every `EnvOpen`, `EnvReset`, `EnvStep` and
-//! `EnvClose` to [`Sessions::handle`] and sends back the body it returns with the same
+//! The worker's message loop hands every `EnvOpen`, `EnvReset`, `EnvStep`, `EnvRender`
+//! and `EnvClose` to [`Sessions::handle`] and sends back the body it returns with the same
 //! request id. A session is one [`VecEnv`] (N copies of one environment); its replies are
 //! [`EnvObservation`]s whose bulk numbers are packed little-endian bytes, so a Python
 //! learner reads them with `numpy.frombuffer`.
@@ -38,6 +38,7 @@ use paddock_sim::track::Circuit;
 use paddock_sim::world::{ObstacleConfig, WorldError};
 
 use crate::maps::{MapCache, is_hash};
+use crate::render::Renderers;
 
 /// Most sessions one worker hosts at once; more are answered `BUSY`.
 pub const MAX_SESSIONS: usize = 256;
@@ -50,6 +51,7 @@ pub struct Sessions {
     maps: Option<MapCache>,
     /// Map name -> (hash of its local files, directory), computed once per name.
     local: HashMap<String, (String, PathBuf)>,
+    renderers: Renderers,
 }
 
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> Error {
@@ -79,6 +81,20 @@ impl Sessions {
             Body::EnvOpen(o) => self.open(&o).map(Body::EnvOpened),
             Body::EnvReset(r) => self.reset(&r).map(Body::EnvObservation),
             Body::EnvStep(s) => self.step(&s).map(Body::EnvObservation),
+            Body::EnvRender(r) => match self.open.get(&r.session_id) {
+                Some(env) => {
+                    std::panic::catch_unwind(AssertUnwindSafe(|| self.renderers.render(env, &r)))
+                        .unwrap_or_else(|_| {
+                            Err(error(
+                                ErrorCode::Internal,
+                                "env_render",
+                                "rendering failed (a bug); the session is unchanged",
+                            ))
+                        })
+                        .map(Body::EnvImage)
+                }
+                None => Err(unknown_session("env_render", r.session_id)),
+            },
             Body::EnvClose(c) => match self.open.remove(&c.session_id) {
                 Some(_) => Ok(Body::EnvClosed(EnvClosed {
                     session_id: c.session_id,

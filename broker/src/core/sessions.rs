@@ -56,6 +56,9 @@ pub enum Forwarded {
     Open(EnvOpen),
     /// A client's reset or step, logged when answered.
     Request(EnvRequest),
+    /// A client's request that reads the session without changing it (a render):
+    /// forwarded with the worker's session id, never logged for replay.
+    Read(Body),
     Close,
     /// The open of a replay.
     ReplayOpen,
@@ -68,6 +71,13 @@ impl Forwarded {
     pub fn to_body(&self, worker_session: u64) -> Option<Body> {
         match self {
             Forwarded::Request(r) => Some(r.to_body(worker_session)),
+            Forwarded::Read(body) => {
+                let mut body = body.clone();
+                if let Body::EnvRender(r) = &mut body {
+                    r.session_id = worker_session;
+                }
+                Some(body)
+            }
             Forwarded::Close => Some(Body::EnvClose(paddock_proto::EnvClose {
                 session_id: worker_session,
             })),
@@ -264,7 +274,12 @@ impl Sessions {
                     let mut held: VecDeque<Queued> = orphaned
                         .iter()
                         .filter(|(_, p)| p.session == id)
-                        .filter(|(_, p)| matches!(p.what, Forwarded::Request(_) | Forwarded::Close))
+                        .filter(|(_, p)| {
+                            matches!(
+                                p.what,
+                                Forwarded::Request(_) | Forwarded::Read(_) | Forwarded::Close
+                            )
+                        })
                         .map(|(_, p)| Queued {
                             client_request: p.client_request,
                             what: p.what.clone(),
@@ -285,8 +300,10 @@ impl Sessions {
         }
         for (_, p) in orphaned {
             let client_request = matches!(p.what, Forwarded::Open(_))
-                || (matches!(p.what, Forwarded::Request(_) | Forwarded::Close)
-                    && !self.sessions.contains_key(&p.session));
+                || (matches!(
+                    p.what,
+                    Forwarded::Request(_) | Forwarded::Read(_) | Forwarded::Close
+                ) && !self.sessions.contains_key(&p.session));
             if client_request {
                 out.pending.push(p);
             }
@@ -544,6 +561,39 @@ mod tests {
             },
         );
         (s, id)
+    }
+
+    #[test]
+    fn a_render_in_flight_when_its_worker_dies_is_held_and_never_logged() {
+        let mut s = Sessions::new(LogLimits::default());
+        let id = s.opened(b"c".to_vec(), b"w1".to_vec(), 7, EnvOpen::default(), 1);
+        let rid = s.forward(pending(b"c", 1, b"w1", id, Forwarded::Request(step(1.0))));
+        let p = s.reply(b"w1", rid).unwrap();
+        let Forwarded::Request(r) = p.what else {
+            panic!("a client request")
+        };
+        s.record(id, r, &obs(0.01));
+        let render = Forwarded::Read(Body::EnvRender(paddock_proto::EnvRender {
+            session_id: id,
+            envs: vec![0],
+            width: 320,
+        }));
+        // sent with the worker's own session id
+        match render.to_body(7) {
+            Some(Body::EnvRender(r)) => {
+                assert_eq!((r.session_id, r.envs, r.width), (7, vec![0], 320))
+            }
+            other => panic!("{other:?}"),
+        }
+        let rid = s.forward(pending(b"c", 2, b"w1", id, render.clone()));
+        let orphans = s.worker_gone(b"w1", secs(10.0));
+        assert_eq!(orphans.stalled, vec![id]);
+        assert!(orphans.pending.is_empty(), "held, not answered as lost");
+        assert!(s.reply(b"w1", rid).is_none());
+        let session = s.session(id).unwrap();
+        assert_eq!(session.log.len(), 1, "a render is not logged");
+        assert_eq!(session.queued.len(), 1);
+        assert_eq!(session.queued[0].what, render);
     }
 
     #[test]

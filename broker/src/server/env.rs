@@ -36,7 +36,7 @@ impl Broker {
         self.forward(client, rid, worker, 0, Forwarded::Open(open), body);
     }
 
-    /// Forwards an env reset, step or close to the worker hosting its session, with the
+    /// Forwards an env reset, step, close or render to the worker hosting its session, with the
     /// broker's session id replaced by the worker's; holds it while the session is
     /// being rebuilt.
     pub(super) fn route_env(&mut self, client: ClientKey, rid: u64, body: Body) {
@@ -52,6 +52,11 @@ impl Broker {
                 Forwarded::Request(EnvRequest::Step(s)),
             ),
             Body::EnvClose(c) => (c.session_id, "env_close.session_id", Forwarded::Close),
+            Body::EnvRender(r) => (
+                r.session_id,
+                "env_render.session_id",
+                Forwarded::Read(Body::EnvRender(r)),
+            ),
             _ => return,
         };
         let route = self.sessions.get(sid, &client).map(|s| {
@@ -108,7 +113,8 @@ impl Broker {
         self.arm_spin();
     }
 
-    /// A worker's `EnvOpened`, `EnvObservation`, `EnvClosed` or `Error` for request `rid`.
+    /// A worker's `EnvOpened`, `EnvObservation`, `EnvClosed`, `EnvImage` or `Error` for
+    /// request `rid`.
     pub(super) fn on_env_reply(&mut self, worker: WorkerKey, rid: u64, body: Body) {
         let Some(p) = self.sessions.reply(&worker, rid) else {
             if let Body::Error(e) = &body {
@@ -155,6 +161,10 @@ impl Broker {
                 self.sessions.record(p.session, request, &o);
                 o.session_id = p.session;
                 Body::EnvObservation(o)
+            }
+            (Forwarded::Read(_), Body::EnvImage(mut i)) => {
+                i.session_id = p.session;
+                Body::EnvImage(i)
             }
             (Forwarded::Close, Body::EnvClosed(_)) => {
                 self.sessions.close(p.session);

@@ -532,9 +532,10 @@ impl Broker {
                 self.send(Side::Client, &client, rid, Body::BrokerStatus(status));
             }
             Body::EnvOpen(o) => self.on_env_open(client, rid, o),
-            body @ (Body::EnvReset(_) | Body::EnvStep(_) | Body::EnvClose(_)) => {
-                self.route_env(client, rid, body)
-            }
+            body @ (Body::EnvReset(_)
+            | Body::EnvStep(_)
+            | Body::EnvClose(_)
+            | Body::EnvRender(_)) => self.route_env(client, rid, body),
             Body::JobSubmit(s) => self.on_job_submit(client, rid, s),
             Body::JobStatus(r) => {
                 if let Some(rec) = self.job_record(&client, rid, &r.job_id, "job_status.job_id") {
@@ -705,6 +706,7 @@ impl Broker {
             Body::EnvOpened(o) => self.on_env_reply(worker, rid, Body::EnvOpened(o)),
             Body::EnvObservation(o) => self.on_env_reply(worker, rid, Body::EnvObservation(o)),
             Body::EnvClosed(c) => self.on_env_reply(worker, rid, Body::EnvClosed(c)),
+            Body::EnvImage(i) => self.on_env_reply(worker, rid, Body::EnvImage(i)),
             // an error from a worker answers a forwarded env request, if any
             Body::Error(e) => self.on_env_reply(worker, rid, Body::Error(e)),
             other => self.wrong_socket(Side::Worker, &worker, rid, &other),
