@@ -7,6 +7,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::Args;
 use paddock_policy::{Driver, PurePursuit, PurePursuitParams};
@@ -23,14 +24,18 @@ pub struct PerfArgs {
     #[arg(long)]
     map: Option<String>,
     /// Number of cars stepped together.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 64))]
     agents: usize,
     /// Skip the measurements with the LIDAR scan.
     #[arg(long)]
     no_scan: bool,
     /// Wall-clock seconds per measurement.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = args::above(0.0, 3_600.0))]
     seconds: f64,
+    /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
+    /// vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<std::path::PathBuf>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -56,11 +61,13 @@ fn drive(
     agents: usize,
     scan: bool,
     seconds: f64,
+    vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<Run> {
     let mut config = WorldConfig::with_agents(agents);
     config.collision_mode = CollisionMode::Stop;
     for a in &mut config.agents {
         a.scan = scan;
+        a.params = vehicle.clone();
     }
     let mut world = World::new(circuit.clone(), config)?;
     let mut drivers: Vec<PurePursuit> = (0..agents)
@@ -104,19 +111,15 @@ fn drive(
 pub fn run(args: &PerfArgs) -> Result<()> {
     let name = args.map.as_deref().unwrap_or(DEFAULT_MAP);
     let circuit = Circuit::resolve(name, &[]).with_context(|| format!("loading map {name:?}"))?;
-    anyhow::ensure!(
-        (1..=64).contains(&args.agents),
-        "--agents {} is out of range (1..=64)",
-        args.agents
-    );
+    let vehicle = args::vehicle(args.vehicle.as_deref())?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
-    let noscan = drive(&circuit, args.agents, false, args.seconds)?;
+    let noscan = drive(&circuit, args.agents, false, args.seconds, &vehicle)?;
     let noscan_rate = noscan.agent_steps as f64 / noscan.busy.as_secs_f64();
     let (scan_rate, rays_rate) = if args.no_scan {
         (None, None)
     } else {
         tracing::info!(map = %circuit.name, agents = args.agents, "measuring with scan");
-        let scan = drive(&circuit, args.agents, true, args.seconds)?;
+        let scan = drive(&circuit, args.agents, true, args.seconds, &vehicle)?;
         let scan_rate = scan.agent_steps as f64 / scan.busy.as_secs_f64();
         let lidar = Lidar::new(LidarConfig::default());
         let beams = LidarConfig::default().num_beams;
@@ -144,19 +147,19 @@ pub fn run(args: &PerfArgs) -> Result<()> {
         rays_per_s: rays_rate,
     };
     if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+        outln!("{}", serde_json::to_string(&report)?);
         return Ok(());
     }
-    println!("map {}, {} agent(s), one thread", report.map, report.agents);
+    outln!("map {}, {} agent(s), one thread", report.map, report.agents);
     if let Some(r) = report.agent_steps_per_s_scan {
-        println!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
+        outln!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
     }
-    println!(
+    outln!(
         "  agent-steps/s without scan:        {:>14.0}",
         report.agent_steps_per_s_noscan
     );
     if let Some(r) = report.rays_per_s {
-        println!("  LIDAR rays/s:                      {r:>14.0}");
+        outln!("  LIDAR rays/s:                      {r:>14.0}");
     }
     Ok(())
 }

@@ -9,6 +9,7 @@
 
 use std::path::PathBuf;
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use paddock_policy::{PurePursuit, PurePursuitParams};
@@ -35,16 +36,16 @@ pub struct SynthArgs {
     #[arg(long)]
     map: Option<String>,
     /// Length of the recording [s].
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, value_parser = args::number(5.0, 3600.0))]
     seconds: f64,
     /// Seed of the noise, the disturbances and the logging jitter.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
     /// Lateral acceleration the driver plans with [m/s^2].
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 4.0, value_parser = args::above(0.0, 100.0))]
     lat_accel: f64,
     /// The driver's top speed [m/s].
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 6.0, value_parser = args::above(0.0, 100.0))]
     max_speed: f64,
     /// Nominal vehicle the effects are added to (default: the simulator's default).
     #[arg(long)]
@@ -74,15 +75,6 @@ impl Ou {
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
-    if !(args.seconds.is_finite() && (5.0..=3600.0).contains(&args.seconds)) {
-        bail!("--seconds {} must be in [5, 3600]", args.seconds);
-    }
-    if !(args.lat_accel.is_finite() && args.lat_accel > 0.0) {
-        bail!("--lat-accel {} must be > 0", args.lat_accel);
-    }
-    if !(args.max_speed.is_finite() && args.max_speed > 0.0) {
-        bail!("--max-speed {} must be > 0", args.max_speed);
-    }
     let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
     let nominal = match &args.vehicle {
@@ -225,7 +217,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     let sidecar = PathBuf::from(sidecar);
     std::fs::write(&sidecar, serde_json::to_string_pretty(&truth_json)?)
         .with_context(|| format!("writing {}", sidecar.display()))?;
-    println!(
+    outln!(
         "wrote {} ({} rows over {:.1} s on {}, hidden: {}) and {}",
         out.display(),
         rec.states.len(),

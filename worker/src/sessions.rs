@@ -50,6 +50,8 @@ pub struct Sessions {
     maps: Option<MapCache>,
     /// Map name -> (hash of its local files, directory), computed once per name.
     local: HashMap<String, (String, PathBuf)>,
+    /// Replaces the default vehicle of every car (see `WorkerConfig::vehicle`).
+    vehicle: Option<VehicleParams>,
 }
 
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> Error {
@@ -64,6 +66,20 @@ impl Sessions {
     /// Look maps up by hash in `cache` (the worker's map cache).
     pub fn set_map_cache(&mut self, cache: MapCache) {
         self.maps = Some(cache);
+    }
+
+    /// Cars whose request carries the default vehicle get `vehicle` instead.
+    pub fn set_default_vehicle(&mut self, vehicle: VehicleParams) {
+        self.vehicle = (vehicle != VehicleParams::default()).then_some(vehicle);
+    }
+
+    /// The vehicle of a request's YAML, or this worker's vehicle for the default one.
+    fn vehicle(&self, yaml: &str, prefix: &str) -> Result<VehicleParams, Error> {
+        let v = vehicle_from_yaml(yaml, prefix)?;
+        match &self.vehicle {
+            Some(mine) if v == VehicleParams::default() => Ok(mine.clone()),
+            _ => Ok(v),
+        }
     }
 
     /// How many sessions are open.
@@ -215,7 +231,7 @@ impl Sessions {
             opponents.push(AgentSpec {
                 driver: a.driver.clone(),
                 params,
-                vehicle: vehicle_from_yaml(&a.vehicle_yaml, &format!("opponents[{k}]"))?,
+                vehicle: self.vehicle(&a.vehicle_yaml, &format!("opponents[{k}]"))?,
             });
         }
         let collision_mode = match paddock_proto::CollisionMode::try_from(o.collision_mode) {
@@ -266,7 +282,7 @@ impl Sessions {
             num_envs: o.num_envs as usize,
             seed: o.seed,
             opponents,
-            vehicle: vehicle_from_yaml(&o.vehicle_yaml, "")?,
+            vehicle: self.vehicle(&o.vehicle_yaml, "")?,
             lidar,
             obstacles,
             laps: o.laps,
