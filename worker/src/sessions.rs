@@ -541,6 +541,33 @@ mod tests {
     }
 
     #[test]
+    fn a_worker_vehicle_replaces_only_the_default_one() {
+        let fitted = VehicleParams {
+            mu: 0.6,
+            ..Default::default()
+        };
+        let mut s = Sessions::new();
+        s.set_default_vehicle(fitted.clone());
+        let mut o = open_msg(1);
+        o.opponents = vec![paddock_proto::AgentSpec {
+            driver: "pure-pursuit".into(),
+            ..Default::default()
+        }];
+        let cfg = s.config_from_proto(&o).unwrap();
+        assert_eq!(cfg.vehicle, fitted);
+        assert_eq!(cfg.opponents[0].vehicle, fitted);
+        // a request that carries its own vehicle keeps it
+        let own = VehicleParams {
+            m: 4.0,
+            ..Default::default()
+        };
+        o.vehicle_yaml = own.to_yaml_string();
+        assert_eq!(s.config_from_proto(&o).unwrap().vehicle, own);
+        let plain = Sessions::new().config_from_proto(&open_msg(1)).unwrap();
+        assert_eq!(plain.vehicle, VehicleParams::default());
+    }
+
+    #[test]
     fn bad_requests_name_the_field() {
         let mut s = Sessions::new();
         let id = open(&mut s, 2).session_id;
