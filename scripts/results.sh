@@ -10,12 +10,12 @@ P="$CARGO_TARGET_DIR/release/paddock"
 N="${1:-20}"
 drivers=(pure-pursuit follow-the-gap lattice rrt-star mlp)
 maps=(lakeside quarry harbour)
-echo "| task | map | policy | opponent | episodes | lap time [s] | success | crash | win |"
+echo "| task | map | driver | opponent | episodes | lap time [s] | success | crash | win |"
 echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 for task in b1 b3; do
     for map in "${maps[@]}"; do
         for d in "${drivers[@]}"; do
-            "$P" benchmark "$task" --policy "$d" --map "$map" --episodes "$N" --seed 1 --markdown-row
+            "$P" benchmark "$task" --driver "$d" --map "$map" --episodes "$N" --seed 1 --markdown-row
         done
     done
 done

@@ -241,6 +241,7 @@ fn c_broker_killed_mid_tuning_job_resumes_with_the_same_result() {
                 holdout: spec.holdout as u32,
                 seed: spec.seed,
                 crash_penalty: spec.crash_penalty,
+                vehicle_yaml: String::new(),
             },
         )),
     };

@@ -205,7 +205,7 @@ fn compose_cluster_with_keys_survives_kills_and_matches_local() {
     let mut c = Command::new(paddock());
     c.args([
         "rollout",
-        "--policy",
+        "--driver",
         "pure-pursuit",
         "--episodes",
         "96",

@@ -72,7 +72,7 @@ fn only_allowed_keys_get_in() {
             "broker",
             "--bind",
             &front,
-            "--workers",
+            "--worker-bind",
             &back,
             "--state",
             state.to_str().expect("utf-8 path"),
@@ -119,7 +119,7 @@ fn only_allowed_keys_get_in() {
     let out = std::process::Command::new(paddock_bin())
         .args([
             "rollout",
-            "--policy",
+            "--driver",
             "pure-pursuit",
             "--episodes",
             "2",

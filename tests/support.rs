@@ -194,7 +194,7 @@ impl Cluster {
                 "broker",
                 "--bind",
                 &self.front,
-                "--workers",
+                "--worker-bind",
                 &self.back,
                 "--state",
                 &state,

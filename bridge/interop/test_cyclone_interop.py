@@ -116,7 +116,7 @@ def test_drive_node_answers_cyclone_sensors_and_stops_when_they_fall_silent(padd
     odom_pub = car.publisher("/odom", Odometry, default_qos(10))
     drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
     proc = paddock(
-        "drive", "--policy", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
+        "drive", "--driver", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
     )
     x, speed, period = 0.0, 1.5, 0.025
     sent_stamps = []

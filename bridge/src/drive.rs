@@ -56,22 +56,22 @@ pub struct DriverSpec {
 }
 
 impl DriverSpec {
-    /// `policy` is a `paddock tune` result.json (its `policy`, `params.tuned` and `map`
-    /// fields) when it names an existing file, otherwise a driver name with its defaults;
+    /// `driver` is a `paddock tune` result.json (its `driver`, `params.tuned` and `map`
+    /// fields; `policy` in results written before the rename) when it names an existing file, otherwise a driver name with its defaults;
     /// `overrides` (`name=value`) apply on top either way.
-    pub fn resolve(policy: &str, overrides: &[(String, f64)]) -> Result<Self, BridgeError> {
-        let path = Path::new(policy);
+    pub fn resolve(driver: &str, overrides: &[(String, f64)]) -> Result<Self, BridgeError> {
+        let path = Path::new(driver);
         if path.is_file() {
             return Self::from_tune_result(path, overrides);
         }
-        if policy.ends_with(".json") {
+        if driver.ends_with(".json") {
             return Err(BridgeError::config(
-                "--policy",
-                policy,
+                "--driver",
+                driver,
                 "no such file (give a paddock tune result.json or a driver name)",
             ));
         }
-        let info = driver_info(policy)?;
+        let info = driver_info(driver)?;
         let params = paddock_policy::params_from_overrides(info.name, &info.params, overrides)?;
         Ok(Self {
             name: info.name.to_string(),
@@ -85,9 +85,12 @@ impl DriverSpec {
         let bad = |message: String| BridgeError::format(path, message);
         let v: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
-        let name = v["policy"].as_str().ok_or_else(|| {
-            bad("no string field \"policy\" (a paddock tune result.json?)".into())
-        })?;
+        let name = v["driver"]
+            .as_str()
+            .or_else(|| v["policy"].as_str())
+            .ok_or_else(
+                || bad("no string field \"driver\" (a paddock tune result.json?)".into()),
+            )?;
         let info = driver_info(name)?;
         let tuned = v["params"]["tuned"]
             .as_object()
@@ -733,7 +736,7 @@ mod tests {
             tuned.insert(p.name.into(), serde_json::json!(0.5 * (p.lo + p.hi)));
         }
         let path = dir.join("result.json");
-        let doc = serde_json::json!({"map": "quarry", "policy": "pure-pursuit",
+        let doc = serde_json::json!({"map": "quarry", "driver": "pure-pursuit",
             "params": {"default": {}, "tuned": tuned}});
         std::fs::write(&path, doc.to_string()).unwrap();
         let s = DriverSpec::resolve(path.to_str().unwrap(), &[]).unwrap();
@@ -758,7 +761,7 @@ mod tests {
         let e = DriverSpec::resolve("missing.json", &[])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("--policy") && e.contains("missing.json"), "{e}");
+        assert!(e.contains("--driver") && e.contains("missing.json"), "{e}");
         let d = DriverSpec::resolve("pure-pursuit", &[]).unwrap();
         assert_eq!(d.params.len(), info.params.len());
         std::fs::remove_dir_all(&dir).ok();

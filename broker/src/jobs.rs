@@ -221,8 +221,18 @@ impl JobWork {
                     seed: t.seed,
                     crash_penalty: or_default(t.crash_penalty, 100.0),
                 };
-                let base =
+                let mut base =
                     tune_base(driver, &circuit).map_err(|e| rollout_err(&e, "job_submit.tune"))?;
+                base.agents[0].vehicle = paddock_sim::params::VehicleParams::from_yaml_str(
+                    &t.vehicle_yaml,
+                )
+                .map_err(|e| {
+                    let field = match e.field() {
+                        Some(f) => format!("job_submit.tune.vehicle_yaml.{f}"),
+                        None => "job_submit.tune.vehicle_yaml".into(),
+                    };
+                    invalid(field, e.to_string())
+                })?;
                 let job = TuneJob::new(spec, base, circuit.track.length())
                     .map_err(|e| rollout_err(&e, "job_submit.tune"))?;
                 Ok((

@@ -25,6 +25,7 @@ fn tune_submit(map: &paddock_proto::MapRef) -> paddock_proto::JobSubmit {
             holdout: 2,
             seed: 3,
             crash_penalty: 100.0,
+            vehicle_yaml: String::new(),
         })),
     }
 }
@@ -184,6 +185,15 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
     let e = expect_error(c.reply_to(1, T));
     assert_eq!(e.code, ErrorCode::InvalidArgument as i32);
     assert_eq!(e.field, "job_submit.tune.crash_penalty");
+    // so is a bad vehicle, naming its key and value
+    let mut bad = tune_submit(&map);
+    if let Some(job_submit::Spec::Tune(t)) = &mut bad.spec {
+        t.vehicle_yaml = "m: -2.5\n".into();
+    }
+    c.send(1, Body::JobSubmit(bad));
+    let e = expect_error(c.reply_to(1, T));
+    assert_eq!(e.field, "job_submit.tune.vehicle_yaml.m");
+    assert!(e.message.contains("-2.5"), "{}", e.message);
 
     // no worker yet: a job waits queued and can be cancelled
     c.send(2, Body::JobSubmit(tune_submit(&map)));

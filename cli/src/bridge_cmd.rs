@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
@@ -13,7 +14,6 @@ use paddock_bridge::ros::{Frames, QosConfig, RosConfig, parse_domain_id};
 use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
 use paddock_sim::collision::CollisionMode;
-use paddock_sim::params::VehicleParams;
 use paddock_sim::track::{Circuit, DEFAULT_MAP};
 
 #[derive(Args)]
@@ -45,18 +45,25 @@ struct RosArgs {
     /// DDS domain (default: $ROS_DOMAIN_ID, else 0).
     #[arg(long)]
     domain_id: Option<String>,
+    /// The car's LIDAR topic (sensor_msgs/LaserScan).
     #[arg(long, default_value = "/scan")]
     scan_topic: String,
+    /// The car's odometry topic (nav_msgs/Odometry).
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
+    /// The car's drive command topic (ackermann_msgs/AckermannDriveStamped).
     #[arg(long, default_value = "/drive")]
     drive_topic: String,
+    /// Where the SIL car takes a new start pose (geometry_msgs/PoseWithCovarianceStamped).
     #[arg(long, default_value = "/initialpose")]
     initialpose_topic: String,
+    /// The opponent's LIDAR topic.
     #[arg(long, default_value = "/opp_scan")]
     opp_scan_topic: String,
+    /// The opponent's odometry topic.
     #[arg(long, default_value = "/opp_odom")]
     opp_odom_topic: String,
+    /// The opponent's drive command topic.
     #[arg(long, default_value = "/opp_drive")]
     opp_drive_topic: String,
     /// The SIL car's transforms (tf2's topic).
@@ -89,7 +96,7 @@ struct RosArgs {
     #[arg(long)]
     subscribe_reliable: bool,
     /// QoS history depth (keep last N) of publishers and subscriptions.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = args::whole::<usize>(1, 1_000))]
     qos_depth: usize,
 }
 
@@ -133,8 +140,8 @@ impl RosArgs {
 #[derive(Args)]
 struct DriveArgs {
     /// A `paddock tune` result.json, or a driver name (`paddock drivers`).
-    #[arg(long)]
-    policy: String,
+    #[arg(long, alias = "policy")]
+    driver: String,
     /// Parameter overrides, `name=value,name=value`.
     #[arg(long)]
     params: Option<String>,
@@ -142,27 +149,31 @@ struct DriveArgs {
     /// result's map, else the default map. Their pose comes from /odom (map frame).
     #[arg(long)]
     map: Option<String>,
+    /// Vehicle YAML (as `paddock sysid` writes it) for drivers that plan with the car's
+    /// geometry and limits (default: the f1tenth_gym vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
     /// Steering limit, rad.
-    #[arg(long, default_value_t = 0.4189, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.4189, value_parser = args::number(0.0, 1.6))]
     max_steer: f64,
     /// Speed limit, m/s (raise it deliberately).
-    #[arg(long, default_value_t = 4.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 4.0, value_parser = args::number(0.0, 30.0))]
     max_speed: f64,
     /// Lowest speed, m/s (negative allows reversing).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.0, value_parser = args::number(-30.0, 30.0))]
     min_speed: f64,
     /// A sensor older than this stops the car, s.
-    #[arg(long, default_value_t = 0.25)]
+    #[arg(long, default_value_t = 0.25, value_parser = args::above(0.0, 10.0))]
     sensor_timeout: f64,
     /// Emergency stop below this time to collision, s (0 disables it).
-    #[arg(long, default_value_t = 0.25)]
+    #[arg(long, default_value_t = 0.25, value_parser = args::number(0.0, 10.0))]
     ttc: f64,
     /// The emergency stop releases after this long clear, s.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = args::number(0.0, 10.0))]
     ttc_release: f64,
     /// Half width of the straight-ahead strip whose returns count for the TTC, m
     /// (0: every beam, the classic per-beam TTC).
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, default_value_t = 0.2, value_parser = args::number(0.0, 5.0))]
     ttc_corridor: f64,
     /// Stop while more than this fraction of the scan's beams within 20 degrees of
     /// straight ahead are invalid (REP 117: NaN or an error code; 1: never).
@@ -188,10 +199,10 @@ struct DriveArgs {
     #[arg(long)]
     laser_flipped: bool,
     /// Least command rate, Hz (commands also follow every new sensor message).
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = 40.0, value_parser = args::above(0.0, 1_000.0))]
     rate_hz: f64,
     /// Stop after this many seconds.
-    #[arg(long)]
+    #[arg(long, value_parser = args::above(0.0, 1e6))]
     seconds: Option<f64>,
     #[command(flatten)]
     ros: RosArgs,
@@ -209,31 +220,38 @@ struct SilArgs {
     /// Parameter overrides for the opponent driver, `name=value,...`.
     #[arg(long)]
     opponent_params: Option<String>,
+    /// Vehicle YAML of both cars (as `paddock sysid` writes it: the fitted car; default:
+    /// the f1tenth_gym vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
     /// Simulated seconds per wall-clock second (1 = real time).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = args::above(0.0, 1_000.0))]
     rate: f64,
-    #[arg(long, default_value_t = 40.0)]
+    /// LIDAR scans published per simulated second.
+    #[arg(long, default_value_t = 40.0, value_parser = args::above(0.0, 1_000.0))]
     scan_hz: f64,
-    #[arg(long, default_value_t = 100.0)]
+    /// Odometry messages published per simulated second.
+    #[arg(long, default_value_t = 100.0, value_parser = args::above(0.0, 1_000.0))]
     odom_hz: f64,
     /// End after the ego car drives this many laps.
-    #[arg(long)]
+    #[arg(long, value_parser = args::whole::<u32>(1, 1_000))]
     laps: Option<u32>,
     /// End after this many simulated seconds.
-    #[arg(long)]
+    #[arg(long, value_parser = args::above(0.0, 1e6))]
     seconds: Option<f64>,
     /// Start at this arc length along the centerline, m.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = args::number(0.0, 1e5))]
     start_s: f64,
-    #[arg(long, default_value_t = 0)]
+    /// Seed of the LIDAR noise.
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
     /// LIDAR noise standard deviation, m.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, value_parser = args::number(0.0, 1.0))]
     lidar_noise: f64,
     /// The simulated laser's position ahead of the car's reference point (base_link),
     /// m: 0 as f1tenth_gym_ros (`scan_distance_to_base_link`); 0.27 is where
     /// f1tenth_system mounts the Hokuyo. Published on /tf_static.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = args::number(-1.0, 1.0))]
     laser_x: f64,
     /// What a collision does: stop (put back and halted), terminate, ignore.
     #[arg(long, default_value = "stop")]
@@ -253,10 +271,11 @@ struct SilArgs {
 
 #[derive(Args)]
 struct RecordArgs {
+    /// The MCAP file to write.
     #[arg(long)]
     out: PathBuf,
     /// Stop after this many seconds (else Ctrl-C).
-    #[arg(long)]
+    #[arg(long, value_parser = args::above(0.0, 1e6))]
     seconds: Option<f64>,
     /// Log time of each message: `header` (its stamp) or `receive` (arrival).
     #[arg(long, default_value = "header")]
@@ -270,10 +289,13 @@ struct ExportArgs {
     /// The recording: an MCAP file (one never finalised is read up to its last complete
     /// chunk), a rosbag2 bag folder (SQLite3 or MCAP storage) or a `.db3` file.
     recording: PathBuf,
+    /// The CSV file to write.
     #[arg(long)]
     out: PathBuf,
+    /// The recording's drive command topic.
     #[arg(long, default_value = "/drive")]
     drive_topic: String,
+    /// The recording's odometry topic.
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
 }
@@ -349,14 +371,14 @@ fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
 
 fn drive(a: &DriveArgs) -> Result<()> {
     let ros = a.ros.config(Frames::default())?;
-    let spec = DriverSpec::resolve(&a.policy, &overrides(a.params.as_deref())?)?;
+    let spec = DriverSpec::resolve(&a.driver, &overrides(a.params.as_deref())?)?;
     let map = a
         .map
         .clone()
         .or_else(|| spec.map.clone())
         .unwrap_or_else(|| DEFAULT_MAP.to_string());
     let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("--map {map}"))?;
-    let driver = spec.build(&circuit, &VehicleParams::default())?;
+    let driver = spec.build(&circuit, &args::vehicle(a.vehicle.as_deref())?)?;
     let options = DriveOptions {
         rate_hz: a.rate_hz,
         seconds: a.seconds,
@@ -395,23 +417,36 @@ fn drive(a: &DriveArgs) -> Result<()> {
     let s = s?;
     let l = &s.latency;
     let c = &s.safety;
-    println!(
+    outln!(
         "{} commands in {:.1} s ({} scans, {} odometry); zero speed sent at exit",
-        s.commands, s.duration_s, s.scans, s.odoms
+        s.commands,
+        s.duration_s,
+        s.scans,
+        s.odoms
     );
-    println!(
+    outln!(
         "{}->drive latency over {} commands: mean {:.2} ms, p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
-        s.trigger, l.count, l.mean_ms, l.p50_ms, l.p99_ms, l.max_ms
+        s.trigger,
+        l.count,
+        l.mean_ms,
+        l.p50_ms,
+        l.p99_ms,
+        l.max_ms
     );
     let e = &s.end_to_end;
     if e.count > 0 {
-        println!(
+        outln!(
             "{} publish->drive publish (DDS source stamps, same-host clock) over {}: mean {:.2} ms, p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
-            s.trigger, e.count, e.mean_ms, e.p50_ms, e.p99_ms, e.max_ms
+            s.trigger,
+            e.count,
+            e.mean_ms,
+            e.p50_ms,
+            e.p99_ms,
+            e.max_ms
         );
     }
     let m = &s.laser_mount;
-    println!(
+    outln!(
         "laser mount ({}): x {:.3} m, y {:.3} m, yaw {:.3} rad{}",
         s.laser_mount_source,
         m.x,
@@ -419,9 +454,15 @@ fn drive(a: &DriveArgs) -> Result<()> {
         m.yaw,
         if m.flipped { ", flipped" } else { "" }
     );
-    println!(
+    outln!(
         "safety: {} stale-sensor stops, {} emergency-stop commands ({} engagements, min TTC {:.2} s), {} blind-ahead stops, {} clamped, {} invalid",
-        c.stale, c.emergency, c.emergency_engaged, c.min_ttc, c.blind, c.clamped, c.invalid
+        c.stale,
+        c.emergency,
+        c.emergency_engaged,
+        c.min_ttc,
+        c.blind,
+        c.clamped,
+        c.invalid
     );
     Ok(())
 }
@@ -440,14 +481,10 @@ fn sil(a: &SilArgs) -> Result<()> {
         .collision
         .parse()
         .map_err(|e: String| anyhow::anyhow!("--collision: {e}"))?;
-    let mut lidar = paddock_sim::lidar::LidarConfig::default();
-    if !(a.lidar_noise.is_finite() && a.lidar_noise >= 0.0) {
-        anyhow::bail!("--lidar-noise = {}: must be a number >= 0", a.lidar_noise);
-    }
-    lidar.noise_std = a.lidar_noise;
-    if !(a.laser_x.is_finite() && a.laser_x.abs() <= 1.0) {
-        anyhow::bail!("--laser-x = {}: must be within +-1 m", a.laser_x);
-    }
+    let mut lidar = paddock_sim::lidar::LidarConfig {
+        noise_std: a.lidar_noise,
+        ..Default::default()
+    };
     lidar.mount_offset = a.laser_x;
     let options = SilOptions {
         map: a.map.clone(),
@@ -463,7 +500,7 @@ fn sil(a: &SilArgs) -> Result<()> {
         collision_mode,
         wait_for_drive: a.wait_for_drive,
         tf: !a.no_tf,
-        ..SilOptions::default()
+        vehicle: args::vehicle(a.vehicle.as_deref())?,
     };
     let stop = stop_flag()?;
     eprintln!(
@@ -474,10 +511,10 @@ fn sil(a: &SilArgs) -> Result<()> {
     report_signal();
     let s = s?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&s)?);
+        outln!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());
     }
-    println!(
+    outln!(
         "{}: {:.2} s simulated in {:.2} s wall ({} steps), {} drive messages, max lag {:.1} ms",
         s.map,
         s.sim_time,
@@ -488,7 +525,7 @@ fn sil(a: &SilArgs) -> Result<()> {
     );
     for (i, laps) in s.lap_times.iter().enumerate() {
         let shown: Vec<String> = laps.iter().map(|t| format!("{t:.2}")).collect();
-        println!(
+        outln!(
             "car {i}: laps [{}] s, {} steps in collision",
             shown.join(", "),
             s.collision_steps[i]
@@ -523,9 +560,9 @@ fn rec(a: &RecordArgs) -> Result<()> {
     report_signal();
     let s = s?;
     for (topic, n) in &s.messages {
-        println!("{topic}: {n} messages");
+        outln!("{topic}: {n} messages");
     }
-    println!("wrote {} ({:.1} s)", a.out.display(), s.duration_s);
+    outln!("wrote {} ({:.1} s)", a.out.display(), s.duration_s);
     Ok(())
 }
 
@@ -539,6 +576,6 @@ fn export(a: &ExportArgs) -> Result<()> {
     if let Some(t) = truncation {
         eprintln!("{}: {t}", a.recording.display());
     }
-    println!("wrote {} ({rows} rows)", a.out.display());
+    outln!("wrote {} ({rows} rows)", a.out.display());
     Ok(())
 }

@@ -12,6 +12,7 @@ use paddock_broker::{Broker, BrokerConfig, Security};
 use paddock_proto::{Body, JobInfo, JobState};
 use paddock_worker::{WorkerConfig, WorkerThread};
 
+use crate::args::{self, outln};
 use crate::remote::Remote;
 
 /// How long a single request to the broker may wait for its reply.
@@ -22,9 +23,9 @@ pub struct BrokerArgs {
     /// Client endpoint (the CLI and Python learners connect here).
     #[arg(long, default_value = "tcp://127.0.0.1:5555")]
     pub bind: String,
-    /// Worker endpoint.
+    /// Worker endpoint: where workers connect (`paddock worker --connect`).
     #[arg(long, default_value = "tcp://127.0.0.1:5556")]
-    pub workers: String,
+    pub worker_bind: String,
     /// State directory: the job database and the maps by hash.
     #[arg(long, default_value = "paddock-state")]
     pub state: PathBuf,
@@ -63,8 +64,8 @@ pub struct WorkerArgs {
     #[arg(long, env = "PADDOCK_CONNECT", default_value = "tcp://127.0.0.1:5556")]
     pub connect: String,
     /// Episodes run at once (0: one per core this process may use, i.e. the
-    /// container's CPU share).
-    #[arg(long, env = "PADDOCK_THREADS", default_value_t = 0)]
+    /// container's CPU share; at most 4 per core).
+    #[arg(long, env = "PADDOCK_THREADS", default_value_t = 0, value_parser = args::threads())]
     pub threads: usize,
     /// Touch this file at every heartbeat while the broker answers (health check).
     #[arg(long, value_name = "FILE")]
@@ -79,11 +80,12 @@ pub struct ServeArgs {
     /// Client endpoint.
     #[arg(long, default_value = "tcp://127.0.0.1:5555")]
     pub bind: String,
-    /// Worker processes' threads run in this process: how many workers.
-    #[arg(long, default_value_t = 1)]
+    /// How many workers run in this process.
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 64))]
     pub workers: usize,
-    /// Threads per worker (0: one per core divided among the workers).
-    #[arg(long, default_value_t = 0)]
+    /// Threads per worker (0: one per core divided among the workers; at most 4 per
+    /// core).
+    #[arg(long, default_value_t = 0, value_parser = args::threads())]
     pub threads: usize,
     /// State directory (default: a fresh temporary one, removed at exit).
     #[arg(long)]
@@ -96,6 +98,10 @@ pub struct ServeArgs {
     /// it. The Python client passes its own id.
     #[arg(long, value_name = "PID")]
     pub parent_pid: Option<u32>,
+    /// Vehicle YAML (as `paddock sysid` writes it) of every car whose request names no
+    /// vehicle (default: the f1tenth_gym vehicle); requests that carry one keep theirs.
+    #[arg(long, value_name = "FILE")]
+    pub vehicle: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -103,6 +109,7 @@ pub struct StatusArgs {
     /// The broker's client endpoint.
     #[arg(long, default_value = "tcp://127.0.0.1:5555")]
     pub endpoint: String,
+    /// Print JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -114,6 +121,7 @@ pub struct JobsArgs {
     /// The broker's client endpoint.
     #[arg(long, global = true, default_value = "tcp://127.0.0.1:5555")]
     pub endpoint: String,
+    /// Print JSON.
     #[arg(long, global = true)]
     pub json: bool,
 }
@@ -123,13 +131,25 @@ pub enum JobsCommand {
     /// Every job the broker stores.
     List,
     /// One job's state and progress.
-    Status { job_id: String },
+    Status {
+        /// The job's id (`paddock jobs list`).
+        job_id: String,
+    },
     /// Wait for a job to end, with a progress bar; prints its final state.
-    Wait { job_id: String },
+    Wait {
+        /// The job's id (`paddock jobs list`).
+        job_id: String,
+    },
     /// Cancel a queued or running job.
-    Cancel { job_id: String },
+    Cancel {
+        /// The job's id (`paddock jobs list`).
+        job_id: String,
+    },
     /// A finished job's result document.
-    Result { job_id: String },
+    Result {
+        /// The job's id (`paddock jobs list`).
+        job_id: String,
+    },
 }
 
 fn stop_flag() -> Arc<AtomicBool> {
@@ -156,7 +176,7 @@ fn is_loopback(endpoint: &str) -> bool {
 /// unless --insecure.
 fn broker_security(args: &BrokerArgs) -> Result<Option<Security>> {
     let Some(key) = &args.secret_key else {
-        let public: Vec<&str> = [&args.bind, &args.workers]
+        let public: Vec<&str> = [&args.bind, &args.worker_bind]
             .into_iter()
             .filter(|e| !is_loopback(e))
             .map(String::as_str)
@@ -206,7 +226,7 @@ fn health_beat(path: PathBuf, stop: Arc<AtomicBool>) {
 }
 
 pub fn broker(args: &BrokerArgs) -> Result<()> {
-    let mut cfg = BrokerConfig::new(&args.bind, &args.workers, &args.state);
+    let mut cfg = BrokerConfig::new(&args.bind, &args.worker_bind, &args.state);
     cfg.security = broker_security(args)?;
     cfg.maps = paddock_proto::convert::shipped_bundles();
     let secured = cfg.security.is_some();
@@ -281,6 +301,7 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
             std::os::unix::process::parent_id()
         );
     }
+    let vehicle = args::vehicle(args.vehicle.as_deref())?;
     let tmp;
     let state = match &args.state {
         Some(s) => s.clone(),
@@ -313,12 +334,13 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
         let mut cfg = WorkerConfig::new(&local);
         cfg.threads = threads;
         cfg.maps_dir = maps.clone();
+        cfg.vehicle = vehicle.clone();
         workers.push(WorkerThread::spawn_in(cfg, ctx.clone()).context("starting a worker")?);
     }
     let mut remote = Remote::connect(&front)?;
     wait_for_workers(&mut remote, args.workers, Duration::from_secs(30))?;
     // the one line a learner or script reads to find the broker
-    println!("{front}");
+    outln!("{front}");
     eprintln!(
         "serving: {} workers x {threads} threads; clients connect to {front} (Ctrl-C stops)",
         args.workers
@@ -474,10 +496,10 @@ pub fn status(args: &StatusArgs) -> Result<()> {
     let mut remote = Remote::connect(&args.endpoint)?;
     let s = fetch_status(&mut remote)?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&status_json(&s))?);
+        outln!("{}", serde_json::to_string_pretty(&status_json(&s))?);
         return Ok(());
     }
-    println!(
+    outln!(
         "broker {} at {}: up {:.0} s, {} workers alive, queue {}, in flight {}, {:.1} tasks/s, {} tasks done, {} jobs running, {} env sessions",
         s.version,
         args.endpoint,
@@ -491,20 +513,26 @@ pub fn status(args: &StatusArgs) -> Result<()> {
         s.env_sessions
     );
     for w in &s.workers {
-        println!(
+        outln!(
             "  {:<36} {:<16} capacity {:>3}  in flight {:>3}  done {:>7}  seen {:.1} s ago",
-            w.worker_id, w.hostname, w.capacity, w.in_flight, w.tasks_done, w.last_seen_s
+            w.worker_id,
+            w.hostname,
+            w.capacity,
+            w.in_flight,
+            w.tasks_done,
+            w.last_seen_s
         );
     }
     if s.sessions_replayed + s.sessions_lost > 0 {
-        println!(
+        outln!(
             "  env sessions whose worker died: {} rebuilt on another worker, {} lost",
-            s.sessions_replayed, s.sessions_lost
+            s.sessions_replayed,
+            s.sessions_lost
         );
     }
     if !s.errors.is_empty() {
         let errs: Vec<String> = s.errors.iter().map(|(k, v)| format!("{k} {v}")).collect();
-        println!("  refused requests: {}", errs.join(", "));
+        outln!("  refused requests: {}", errs.join(", "));
     }
     Ok(())
 }
@@ -641,21 +669,21 @@ pub fn jobs(args: &JobsArgs) -> Result<()> {
             };
             if args.json {
                 let v: Vec<_> = l.jobs.iter().map(info_json).collect();
-                println!("{}", serde_json::to_string_pretty(&v)?);
+                outln!("{}", serde_json::to_string_pretty(&v)?);
             } else if l.jobs.is_empty() {
-                println!("no jobs");
+                outln!("no jobs");
             } else {
                 for j in &l.jobs {
-                    println!("{}", info_line(j));
+                    outln!("{}", info_line(j));
                 }
             }
         }
         JobsCommand::Status { job_id } => {
             let i = job_status(&mut remote, job_id)?;
             if args.json {
-                println!("{}", serde_json::to_string_pretty(&info_json(&i))?);
+                outln!("{}", serde_json::to_string_pretty(&info_json(&i))?);
             } else {
-                println!("{}", info_line(&i));
+                outln!("{}", info_line(&i));
             }
         }
         JobsCommand::Wait { job_id } => {
@@ -672,9 +700,9 @@ pub fn jobs(args: &JobsArgs) -> Result<()> {
             })?;
             bar.finish_and_clear();
             if args.json {
-                println!("{}", serde_json::to_string_pretty(&info_json(&i))?);
+                outln!("{}", serde_json::to_string_pretty(&info_json(&i))?);
             } else {
-                println!("{}", info_line(&i));
+                outln!("{}", info_line(&i));
             }
             if i.state != JobState::Succeeded as i32 {
                 bail!("job {} ended {}", i.job_id, state_name(i.state));
@@ -691,9 +719,9 @@ pub fn jobs(args: &JobsArgs) -> Result<()> {
                 bail!("unexpected reply to job_cancel");
             };
             if args.json {
-                println!("{}", serde_json::to_string_pretty(&info_json(&i))?);
+                outln!("{}", serde_json::to_string_pretty(&info_json(&i))?);
             } else {
-                println!("{}", info_line(&i));
+                outln!("{}", info_line(&i));
             }
         }
         JobsCommand::Result { job_id } => {
@@ -709,14 +737,14 @@ pub fn jobs(args: &JobsArgs) -> Result<()> {
             }
             if r.result_json.is_empty() {
                 if args.json {
-                    println!("{}", serde_json::to_string_pretty(&info_json(info))?);
+                    outln!("{}", serde_json::to_string_pretty(&info_json(info))?);
                 } else {
-                    println!("{}", info_line(info));
+                    outln!("{}", info_line(info));
                 }
             } else {
                 let doc: serde_json::Value = serde_json::from_str(&r.result_json)
                     .context("the job's result document is not JSON")?;
-                println!("{}", serde_json::to_string_pretty(&doc)?);
+                outln!("{}", serde_json::to_string_pretty(&doc)?);
             }
         }
     }
@@ -727,7 +755,8 @@ pub fn jobs(args: &JobsArgs) -> Result<()> {
 /// follows it with a progress bar (or, with `--detach`, prints the job id and returns)
 /// and prints the same report as a local run.
 pub fn tune_remote(args: &crate::tune_cmd::TuneArgs, endpoint: &str, detach: bool) -> Result<()> {
-    let (spec, _base, circuit) = crate::tune_cmd::setup(args)?;
+    let (spec, base, circuit) = crate::tune_cmd::setup(args)?;
+    let vehicle = &base.agents[0].vehicle;
     let map = args
         .map
         .clone()
@@ -747,6 +776,12 @@ pub fn tune_remote(args: &crate::tune_cmd::TuneArgs, endpoint: &str, detach: boo
                 holdout: u32::try_from(spec.holdout).context("--holdout is too large")?,
                 seed: spec.seed,
                 crash_penalty: spec.crash_penalty,
+                // the default vehicle travels as nothing
+                vehicle_yaml: if *vehicle == paddock_sim::params::VehicleParams::default() {
+                    String::new()
+                } else {
+                    vehicle.to_yaml_string()
+                },
             },
         )),
     };
@@ -755,7 +790,7 @@ pub fn tune_remote(args: &crate::tune_cmd::TuneArgs, endpoint: &str, detach: boo
         bail!("unexpected reply to job_submit");
     };
     if detach {
-        println!("{}", info.job_id);
+        outln!("{}", info.job_id);
         return Ok(());
     }
     let bar = indicatif::ProgressBar::new(info.rounds_total.max(1).into());

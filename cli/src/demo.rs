@@ -1,5 +1,6 @@
 //! `paddock demo`: one episode with the pure-pursuit driver, lap times printed.
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::Args;
 use paddock_rollout::{AgentSpec, Scenario, Termination, run_episode};
@@ -11,17 +12,21 @@ pub struct DemoArgs {
     #[arg(long)]
     map: Option<String>,
     /// Number of cars.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 16))]
     agents: usize,
     /// Laps to drive.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = args::whole::<u32>(1, 100))]
     laps: u32,
     /// Episode seed.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
     /// Time limit, simulated seconds.
-    #[arg(long, default_value_t = 300.0)]
+    #[arg(long, default_value_t = 300.0, value_parser = args::above(0.0, 36_000.0))]
     time_limit: f64,
+    /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
+    /// vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<std::path::PathBuf>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -30,7 +35,9 @@ pub struct DemoArgs {
 pub fn run(args: &DemoArgs) -> Result<()> {
     let mut scenario = Scenario::single("pure-pursuit")?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
-    scenario.agents = vec![AgentSpec::with_defaults("pure-pursuit")?; args.agents];
+    let mut car = AgentSpec::with_defaults("pure-pursuit")?;
+    car.vehicle = args::vehicle(args.vehicle.as_deref())?;
+    scenario.agents = vec![car; args.agents];
     scenario.laps = args.laps;
     scenario.time_limit = args.time_limit;
     let episode = run_episode(&scenario, args.seed, None)
@@ -50,7 +57,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 })
             })
             .collect();
-        println!(
+        outln!(
             "{}",
             serde_json::to_string_pretty(&serde_json::json!({
                 "map": episode.map,
@@ -61,9 +68,11 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         );
         return Ok(());
     }
-    println!(
+    outln!(
         "map {}, seed {}, {:.2} s simulated",
-        episode.map, args.seed, episode.time
+        episode.map,
+        args.seed,
+        episode.time
     );
     for (i, a) in episode.agents.iter().enumerate() {
         let laps: Vec<String> = a.lap_times.iter().map(|t| format!("{t:.2} s")).collect();
@@ -72,7 +81,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             Termination::Crashed => "crashed",
             Termination::Finished => "finished",
         };
-        println!(
+        outln!(
             "car {i}: {status}; laps: {}",
             if laps.is_empty() {
                 "none".to_string()

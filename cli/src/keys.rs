@@ -14,6 +14,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use paddock_libzmq::{KeyPair, public_file};
@@ -28,8 +29,11 @@ pub enum KeysCommand {
 pub enum Role {
     /// The broker, one worker and one client key.
     All,
+    /// The broker's key only.
     Broker,
+    /// One worker key (named by --name).
     Worker,
+    /// One client key (named by --name).
     Client,
 }
 
@@ -38,6 +42,7 @@ pub struct GenerateArgs {
     /// Directory for the key files (created if missing).
     #[arg(long, default_value = "keys")]
     pub out: PathBuf,
+    /// Whose keys to write.
     #[arg(long, value_enum, default_value_t = Role::All)]
     pub role: Role,
     /// File name for a worker or client key (default: the role's name).
@@ -46,6 +51,7 @@ pub struct GenerateArgs {
     /// Overwrite existing key files.
     #[arg(long)]
     pub force: bool,
+    /// Print the written files and public keys as JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -110,10 +116,10 @@ pub fn run(cmd: &KeysCommand) -> Result<()> {
                 serde_json::json!({"role": role, "key_file": path, "public": public})
             })
             .collect();
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        outln!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         for (role, path, public) in &made {
-            println!("{role:<7} {}  public {public}", path.display());
+            outln!("{role:<7} {}  public {public}", path.display());
         }
     }
     Ok(())
@@ -125,7 +131,7 @@ pub struct HealthArgs {
     #[arg(long)]
     pub file: PathBuf,
     /// Seconds after which the file counts as stale.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, value_parser = args::above(0.0, 86_400.0))]
     pub max_age: f64,
 }
 
@@ -145,7 +151,7 @@ pub fn health(args: &HealthArgs) -> Result<()> {
             args.max_age
         );
     }
-    println!("healthy ({age:.1} s)");
+    outln!("healthy ({age:.1} s)");
     Ok(())
 }
 

@@ -1,5 +1,6 @@
 //! `paddock`: the command-line front door of Paddock.
 
+mod args;
 mod bridge_cmd;
 mod cluster;
 mod demo;
@@ -20,7 +21,9 @@ mod video;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+
+use crate::args::outln;
 
 #[derive(Parser)]
 #[command(
@@ -57,10 +60,15 @@ enum Command {
     Rollout(rollout_cmd::RolloutArgs),
     /// Run benchmark task b1 (time trial), b2 (unknown obstacles) or b3 (head to head).
     Benchmark(rollout_cmd::BenchmarkArgs),
-    /// List the drivers and their tunable parameters.
+    /// List the drivers (what drives a car: a built-in controller or a network) and
+    /// their tunable parameters.
     Drivers {
+        /// Print JSON: every driver with every parameter (an MLP's weights included).
         #[arg(long)]
         json: bool,
+        /// List every parameter, an MLP's weights one by one too.
+        #[arg(long)]
+        verbose: bool,
     },
     /// The reality-gap tool: find and fit the physics a recording shows the simulator lacks
     /// (`paddock sysid synth` writes a recording with hidden effects).
@@ -72,7 +80,7 @@ enum Command {
         #[command(subcommand)]
         command: MapsCommand,
     },
-    /// Run the broker: clients on --bind, workers on --workers, jobs stored in --state.
+    /// Run the broker: clients on --bind, workers on --worker-bind, jobs stored in --state.
     Broker(cluster::BrokerArgs),
     /// Run a worker: connect to a broker and run its tasks on all cores.
     Worker(cluster::WorkerArgs),
@@ -97,7 +105,8 @@ enum Command {
 enum MapsCommand {
     /// List the shipped maps and the maps in any directories given.
     List {
-        /// More directories of maps (F1TENTH racetracks layout: one directory per map).
+        /// More maps: a map's own folder, or a folder of map folders (F1TENTH racetracks
+        /// layout).
         dirs: Vec<PathBuf>,
         /// Print JSON.
         #[arg(long)]
@@ -117,7 +126,8 @@ fn main() {
         )
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
+    let matches = args::allow_negative_numbers(Cli::command()).get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     // folders of the user's own maps, looked up by name before the shipped ones
     if let Some(v) = std::env::var_os("PADDOCK_MAPS") {
         paddock_sim::shipped::add_map_dirs(
@@ -130,7 +140,7 @@ fn main() {
         Command::Demo(args) => demo::run(&args),
         Command::Rollout(args) => rollout_cmd::rollout(&args),
         Command::Benchmark(args) => rollout_cmd::benchmark(&args),
-        Command::Drivers { json } => list_drivers(json),
+        Command::Drivers { json, verbose } => list_drivers(json, verbose),
         Command::Sysid(args) => sysid_cmd::run(&args),
         Command::Bridge(args) => bridge_cmd::run(&args),
         Command::Broker(args) => cluster::broker(&args),
@@ -147,6 +157,10 @@ fn main() {
         },
     });
     if let Err(e) = result {
+        if args::is_broken_pipe(&e) {
+            // the reader is done (`paddock drivers | head`): end quietly, as Unix tools do
+            std::process::exit(0);
+        }
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }
@@ -186,22 +200,38 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
             if !d.is_dir() {
                 anyhow::bail!("not a directory of maps: {}", d.display());
             }
-            for dir in list_circuit_dirs(d) {
+            // a map's own folder lists itself; a folder of map folders lists each
+            let maps = if source == "given" && is_circuit_dir(d) {
+                vec![d.clone()]
+            } else {
+                list_circuit_dirs(d)
+            };
+            if source == "given" && maps.is_empty() {
+                anyhow::bail!(
+                    "no maps in {}: neither a map folder (a *_map.yaml inside) nor a folder of map folders",
+                    d.display()
+                );
+            }
+            for dir in maps {
                 rows.push(row(source, &dir, dir.display().to_string()));
             }
         }
     }
     if json {
-        println!("{}", serde_json::to_string_pretty(&rows)?);
+        outln!("{}", serde_json::to_string_pretty(&rows)?);
         return Ok(());
     }
-    println!(
+    outln!(
         "{:<16} {:<12} {:>9} {:>9} {:>12}  path",
-        "name", "source", "length_m", "raceline", "cells"
+        "name",
+        "source",
+        "length_m",
+        "raceline",
+        "cells"
     );
     for r in &rows {
         if let Some(err) = r.get("error") {
-            println!(
+            outln!(
                 "{:<16} {:<12} error: {}",
                 r["name"].as_str().unwrap_or("?"),
                 r["source"].as_str().unwrap_or("?"),
@@ -218,7 +248,7 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
                 ""
             }
         );
-        println!(
+        outln!(
             "{:<16} {:<12} {:>9.1} {:>9} {:>12}  {}",
             name,
             r["source"].as_str().unwrap_or("?"),
@@ -232,18 +262,18 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
             r["path"].as_str().unwrap_or("?"),
         );
     }
-    println!("(* = the default map)");
+    outln!("(* = the default map)");
     Ok(())
 }
 
-fn list_drivers(json: bool) -> Result<()> {
+fn list_drivers(json: bool, verbose: bool) -> Result<()> {
     let drivers = paddock_policy::drivers();
     if json {
-        println!("{}", serde_json::to_string_pretty(&drivers)?);
+        outln!("{}", serde_json::to_string_pretty(&drivers)?);
         return Ok(());
     }
     for d in drivers {
-        println!(
+        outln!(
             "{} ({}){}",
             d.name,
             d.about,
@@ -253,14 +283,69 @@ fn list_drivers(json: bool) -> Result<()> {
                 ""
             }
         );
-        for p in &d.params {
-            println!(
-                "  {:<18} {:>8} in [{}, {}]  {}",
-                p.name, p.default, p.lo, p.hi, p.doc
-            );
+        for group in param_groups(&d.params, verbose) {
+            match group {
+                [p] => outln!(
+                    "  {:<18} {:>8} in [{}, {}]  {}",
+                    p.name,
+                    p.default,
+                    p.lo,
+                    p.hi,
+                    p.doc
+                ),
+                [first, .., last] => outln!(
+                    "  {:<18} {:>8} in [{}, {}]  {} ({} parameters; --verbose lists them)",
+                    format!("{}..{}", first.name, last.name),
+                    "",
+                    first.lo,
+                    first.hi,
+                    first.doc,
+                    group.len()
+                ),
+                [] => {}
+            }
         }
     }
     Ok(())
+}
+
+/// The parameters as lines: runs of more than 4 alike parameters (same doc and bounds:
+/// a network's weights) collapse into one line unless `verbose`.
+fn param_groups(
+    params: &[paddock_policy::ParamSpec],
+    verbose: bool,
+) -> Vec<&[paddock_policy::ParamSpec]> {
+    let alike = |a: &paddock_policy::ParamSpec, b: &paddock_policy::ParamSpec| {
+        a.doc == b.doc && a.lo == b.lo && a.hi == b.hi
+    };
+    let mut out = Vec::new();
+    let mut start = 0;
+    while start < params.len() {
+        let mut end = start + 1;
+        while end < params.len() && alike(&params[start], &params[end]) {
+            end += 1;
+        }
+        if verbose || end - start <= 4 {
+            out.extend((start..end).map(|i| &params[i..=i]));
+        } else {
+            out.push(&params[start..end]);
+        }
+        start = end;
+    }
+    out
+}
+
+/// Whether `dir` is itself a map's folder (holds a `*_map.yaml`).
+fn is_circuit_dir(dir: &std::path::Path) -> bool {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|e| {
+            e.file_name()
+                .to_str()
+                .is_some_and(|n| n.ends_with("_map.yaml"))
+        })
 }
 
 /// Reads `--key` / `--broker-key` into the client security of this process.
@@ -278,5 +363,56 @@ fn client_security(cli: &Cli) -> Result<()> {
         }
         (Some(_), None) => anyhow::bail!("--key needs --broker-key (the broker's public key file)"),
         (None, Some(_)) => anyhow::bail!("--broker-key needs --key (this peer's key file)"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every flag and positional of every command says what it is in `--help`.
+    #[test]
+    fn every_flag_has_help_text() {
+        fn walk(cmd: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            let path = format!("{path} {}", cmd.get_name());
+            for a in cmd.get_arguments() {
+                let id = a.get_id().as_str();
+                if id == "help" || id == "version" {
+                    continue;
+                }
+                let has = a
+                    .get_help()
+                    .is_some_and(|h| !h.to_string().trim().is_empty())
+                    || a.get_long_help().is_some();
+                if !has {
+                    missing.push(format!("{path}: --{}", a.get_long().unwrap_or(id)));
+                }
+            }
+            for sub in cmd.get_subcommands() {
+                walk(sub, &path, missing);
+            }
+        }
+        let mut missing = Vec::new();
+        walk(&Cli::command(), "", &mut missing);
+        assert!(
+            missing.is_empty(),
+            "flags without help text:\n{}",
+            missing.join("\n")
+        );
+    }
+
+    #[test]
+    fn the_command_tree_is_consistent() {
+        args::allow_negative_numbers(Cli::command()).debug_assert();
+    }
+
+    #[test]
+    fn weights_collapse_unless_verbose() {
+        let mlp = paddock_policy::driver_info("mlp").unwrap();
+        assert!(mlp.params.len() > 100);
+        assert!(param_groups(&mlp.params, false).len() < 10);
+        assert_eq!(param_groups(&mlp.params, true).len(), mlp.params.len());
+        let pp = paddock_policy::driver_info("pure-pursuit").unwrap();
+        assert_eq!(param_groups(&pp.params, false).len(), pp.params.len());
     }
 }

@@ -3,16 +3,17 @@
 
 use std::path::PathBuf;
 
+use crate::args::{self, outln};
 use anyhow::Context;
 use paddock_sim::trackgen::{self, TrackGenConfig};
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct GenerateArgs {
     /// Seed: the same seed and options give byte-identical files.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     pub seed: u64,
-    /// Target centerline length in metres (40-600).
-    #[arg(long, default_value_t = 120.0)]
+    /// Target centerline length in metres.
+    #[arg(long, default_value_t = 120.0, value_parser = args::number(40.0, 600.0))]
     pub length: f64,
     /// Map name: files go to <out>/<name>/<name>_*.
     #[arg(long)]
@@ -21,14 +22,17 @@ pub struct GenerateArgs {
     #[arg(long, default_value = "maps")]
     pub out: PathBuf,
     /// Narrowest track width (m).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_parser = args::number(1.0, 8.0))]
     pub width_min: f64,
     /// Widest track width (m).
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 4.0, value_parser = args::number(1.0, 8.0))]
     pub width_max: f64,
     /// Map resolution (m per cell).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = args::number(0.01, 0.5))]
     pub resolution: f64,
+    /// Replace the map's folder when it exists (else refuse to overwrite).
+    #[arg(long)]
+    pub force: bool,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
@@ -43,6 +47,13 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
         resolution: args.resolution,
         ..TrackGenConfig::default()
     };
+    let target = args.out.join(&args.name);
+    if target.exists() && !args.force {
+        anyhow::bail!(
+            "{} exists: pass --force to overwrite it, or choose another --name or --out",
+            target.display()
+        );
+    }
     tracing::debug!(?config, "generating track");
     let track = trackgen::generate(&config)?;
     let folder = track
@@ -79,9 +90,9 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
             "attempts": track.attempts,
             "files": files,
         });
-        println!("{summary}");
+        outln!("{summary}");
     } else {
-        println!(
+        outln!(
             "{}: seed {}, {:.1} m, min radius {:.2} m, {}x{} cells ({} free), raceline lap {:.2} s -> {}",
             args.name,
             args.seed,

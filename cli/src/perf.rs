@@ -10,6 +10,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::Args;
 use paddock_policy::{Driver, PurePursuit, PurePursuitParams};
@@ -26,17 +27,21 @@ pub struct PerfArgs {
     #[arg(long)]
     map: Option<String>,
     /// Number of cars stepped together.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 64))]
     agents: usize,
     /// Skip the measurements with the LIDAR scan.
     #[arg(long)]
     no_scan: bool,
     /// Wall-clock seconds per measurement.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = args::above(0.0, 3_600.0))]
     seconds: f64,
     /// LIDAR code path: portable, avx or avx512 (default: the widest this CPU has).
     #[arg(long)]
     scan_path: Option<String>,
+    /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
+    /// vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<std::path::PathBuf>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -69,11 +74,13 @@ fn drive(
     agents: usize,
     scan: Option<ScanPath>,
     seconds: f64,
+    vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<Run> {
     let mut config = WorldConfig::with_agents(agents);
     config.collision_mode = CollisionMode::Stop;
     for a in &mut config.agents {
         a.scan = scan.is_some();
+        a.params = vehicle.clone();
     }
     let mut world = World::new(circuit.clone(), config)?;
     if let Some(path) = scan {
@@ -131,14 +138,15 @@ pub fn run(args: &PerfArgs) -> Result<()> {
             .with_context(|| format!("--scan-path {name:?} is not one of portable, avx, avx512"))?,
     };
     let lidar = Lidar::new(LidarConfig::default()).with_path(path)?;
+    let vehicle = args::vehicle(args.vehicle.as_deref())?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
-    let noscan = drive(&circuit, args.agents, None, args.seconds)?;
+    let noscan = drive(&circuit, args.agents, None, args.seconds, &vehicle)?;
     let noscan_rate = noscan.agent_steps as f64 / noscan.busy.as_secs_f64();
     let (scan_rate, rays_rate) = if args.no_scan {
         (None, None)
     } else {
         tracing::info!(map = %circuit.name, agents = args.agents, "measuring with scan");
-        let scan = drive(&circuit, args.agents, Some(path), args.seconds)?;
+        let scan = drive(&circuit, args.agents, Some(path), args.seconds, &vehicle)?;
         let scan_rate = scan.agent_steps as f64 / scan.busy.as_secs_f64();
         let beams = LidarConfig::default().num_beams;
         let mut out = vec![0.0; beams];
@@ -169,26 +177,26 @@ pub fn run(args: &PerfArgs) -> Result<()> {
         rays_per_s: rays_rate,
     };
     if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+        outln!("{}", serde_json::to_string(&report)?);
         return Ok(());
     }
-    println!(
+    outln!(
         "map {} ({} x {} cells of {} m), {} agent(s), one thread",
         report.map, report.map_cells[0], report.map_cells[1], report.map_resolution, report.agents
     );
-    println!(
+    outln!(
         "  LIDAR path {} (CPU features: {})",
         report.scan_path, report.cpu_features
     );
     if let Some(r) = report.agent_steps_per_s_scan {
-        println!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
+        outln!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
     }
-    println!(
+    outln!(
         "  agent-steps/s without scan:        {:>14.0}",
         report.agent_steps_per_s_noscan
     );
     if let Some(r) = report.rays_per_s {
-        println!("  LIDAR rays/s:                      {r:>14.0}");
+        outln!("  LIDAR rays/s:                      {r:>14.0}");
     }
     Ok(())
 }

@@ -11,30 +11,32 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use paddock_rollout::{EpisodeTask, Executor, LocalExecutor, Scenario, task_seed};
 
+use crate::args::{self, outln};
 use crate::cluster::{BrokerThread, wait_for_workers};
 use crate::remote::{Remote, RemoteExecutor};
 
 #[derive(Args)]
 pub struct PerfClusterArgs {
     /// Episodes in the batch (one per task).
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = 200, value_parser = args::whole::<usize>(1, 1_000_000))]
     pub episodes: usize,
     /// Simulated seconds per episode.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = args::above(0.0, 36_000.0))]
     pub time_limit: f64,
     /// Driver of the single car.
-    #[arg(long, default_value = "pure-pursuit")]
-    pub policy: String,
+    #[arg(long, alias = "policy", default_value = "pure-pursuit")]
+    pub driver: String,
     /// Map name or directory.
     #[arg(long, default_value = "lakeside")]
     pub map: String,
     /// Threads of the local pool and of each worker process (0: half the cores, so two
-    /// workers fit the machine).
-    #[arg(long, default_value_t = 0)]
+    /// workers fit the machine; at most 4 per core).
+    #[arg(long, default_value_t = 0, value_parser = args::threads())]
     pub threads: usize,
     /// Times each measurement is repeated (the best is kept).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = args::whole::<usize>(1, 100))]
     pub repeats: usize,
+    /// Print JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -99,7 +101,7 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
     } else {
         (cores / 2).max(1)
     };
-    let mut scenario = Scenario::single(&args.policy)?;
+    let mut scenario = Scenario::single(&args.driver)?;
     scenario.map = args.map.clone();
     scenario.time_limit = args.time_limit;
     scenario.validate()?;
@@ -150,7 +152,7 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
     let doc = serde_json::json!({
         "episodes": args.episodes,
         "time_limit_s": args.time_limit,
-        "policy": args.policy,
+        "driver": args.driver,
         "map": args.map,
         "threads_per_process": threads,
         "cores": cores,
@@ -162,23 +164,26 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
         "identical_results": true,
     });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&doc)?);
+        outln!("{}", serde_json::to_string_pretty(&doc)?);
     } else {
-        println!(
+        outln!(
             "{} episodes of {} s ({} on {}), {threads} threads per process, {cores} cores",
-            args.episodes, args.time_limit, args.policy, args.map
+            args.episodes,
+            args.time_limit,
+            args.driver,
+            args.map
         );
-        println!("local:                 {local_rate:>9.1} rollouts/s");
-        println!(
+        outln!("local:                 {local_rate:>9.1} rollouts/s");
+        outln!(
             "broker, 1 worker:      {:>9.1} rollouts/s  (overhead {:+.1}%)",
             rates[0],
             overhead * 100.0
         );
-        println!(
+        outln!(
             "broker, 2 workers:     {:>9.1} rollouts/s  (scaling x{scaling:.2})",
             rates[1]
         );
-        println!("results identical to the local run: yes");
+        outln!("results identical to the local run: yes");
     }
     Ok(())
 }

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use crate::args::{self, out, outln};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -77,35 +78,43 @@ pub fn run_tasks(
 #[derive(Args)]
 pub struct RolloutArgs {
     /// Driver name (see `paddock drivers`).
-    #[arg(long, default_value = "pure-pursuit")]
-    policy: String,
+    #[arg(long, alias = "policy", default_value = "pure-pursuit")]
+    driver: String,
     /// Driver parameters: `name=value,...` or a full comma-separated vector.
     #[arg(long)]
     params: Option<String>,
-    #[arg(long, default_value_t = 10)]
+    /// Vehicle YAML (f1tenth_gym keys and `effects:`, as `paddock sysid` writes it;
+    /// default: the f1tenth_gym vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
+    /// Episodes to run.
+    #[arg(long, default_value_t = 10, value_parser = args::whole::<usize>(1, 1_000_000))]
     episodes: usize,
-    #[arg(long, default_value_t = 0)]
+    /// Batch seed: episode k starts from a seed derived from (seed, k).
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
     /// Map name or directory (default: the default shipped map).
     #[arg(long)]
     map: Option<String>,
-    #[arg(long, default_value_t = 1)]
+    /// Laps to drive.
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<u32>(1, 100))]
     laps: u32,
     /// Simulated seconds before an episode is cut off.
-    #[arg(long, default_value_t = 120.0)]
+    #[arg(long, default_value_t = 120.0, value_parser = args::above(0.0, 36_000.0))]
     time_limit: f64,
     /// Seeded random static obstacles on the track.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::whole::<usize>(0, 1_000))]
     obstacles: usize,
-    /// Worker threads (0: one per core).
-    #[arg(long, default_value_t = 0)]
+    /// Worker threads (0: one per core; at most 4 per core).
+    #[arg(long, default_value_t = 0, value_parser = args::threads())]
     threads: usize,
     /// Run the episodes through the broker at this client endpoint instead of locally.
     #[arg(long, value_name = "URL")]
     endpoint: Option<String>,
     /// With --json: include each episode's trajectory, sampled every N steps.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = args::whole::<u32>(1, 1_000_000))]
     trajectory: Option<u32>,
+    /// Print JSON: every episode and the summary.
     #[arg(long)]
     json: bool,
     /// Write a top-down video of one episode (--video-episode) to this file: .gif, or
@@ -120,23 +129,21 @@ pub struct RolloutArgs {
 }
 
 pub fn rollout(args: &RolloutArgs) -> Result<()> {
-    let params = parse_params(&args.policy, args.params.as_deref())?;
-    let mut scenario = Scenario::single(&args.policy)?;
+    let params = parse_params(&args.driver, args.params.as_deref())?;
+    let mut scenario = Scenario::single(&args.driver)?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     scenario.agents[0].params = params.clone();
+    scenario.agents[0].vehicle = args::vehicle(args.vehicle.as_deref())?;
     scenario.laps = args.laps;
     scenario.time_limit = args.time_limit;
     scenario.obstacles.count = args.obstacles;
     scenario.validate()?;
-    if args.episodes == 0 {
-        bail!("--episodes must be at least 1");
-    }
     let scenario = Arc::new(scenario);
     let mut tasks: Vec<EpisodeTask> = (0..args.episodes)
         .map(|k| EpisodeTask {
             scenario: scenario.clone(),
             seed: task_seed(args.seed, k as u64),
-            record: args.trajectory.map(|n| n.max(1)),
+            record: args.trajectory,
         })
         .collect();
     if let Some(path) = &args.video {
@@ -171,7 +178,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         .iter()
         .filter(|e| e.agents[0].termination == paddock_rollout::Termination::Finished)
         .count();
-    let info = driver_info(&args.policy)?;
+    let info = driver_info(&args.driver)?;
     if args.json {
         let named: serde_json::Map<String, serde_json::Value> = info
             .params
@@ -181,7 +188,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
             .collect();
         let doc = serde_json::json!({
             "map": episodes.first().map(|e| e.map.clone()),
-            "policy": info.name,
+            "driver": info.name,
             "params": named,
             "seed": args.seed,
             "episodes": episodes.iter().enumerate().map(|(k, e)| {
@@ -213,21 +220,21 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
                 "lap_time_std": if std.is_finite() { Some(std) } else { None },
             }
         });
-        println!("{}", serde_json::to_string_pretty(&doc)?);
+        outln!("{}", serde_json::to_string_pretty(&doc)?);
         return Ok(());
     }
-    println!(
+    outln!(
         "{} on {}: {} episodes, seed {}",
         info.name,
         episodes.first().map(|e| e.map.as_str()).unwrap_or("?"),
         episodes.len(),
         args.seed
     );
-    println!("{:>5}  {:>20}  {:<10}  lap times [s]", "ep", "seed", "end");
+    outln!("{:>5}  {:>20}  {:<10}  lap times [s]", "ep", "seed", "end");
     for (k, e) in episodes.iter().enumerate() {
         let a = &e.agents[0];
         let laps: Vec<String> = a.lap_times.iter().map(|t| format!("{t:.2}")).collect();
-        println!(
+        outln!(
             "{k:>5}  {:>20}  {:<10}  {}",
             e.seed,
             format!("{:?}", a.termination).to_lowercase(),
@@ -235,13 +242,13 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         );
     }
     if mean.is_finite() {
-        println!(
+        outln!(
             "finished {finished}/{}; lap time {mean:.3} ± {std:.3} s over {} laps",
             episodes.len(),
             laps.len()
         );
     } else {
-        println!("finished {finished}/{}; no lap completed", episodes.len());
+        outln!("finished {finished}/{}; no lap completed", episodes.len());
     }
     Ok(())
 }
@@ -250,33 +257,47 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
 pub struct BenchmarkArgs {
     /// b1 (time trial), b2 (unknown obstacles) or b3 (head to head).
     task: Task,
-    #[arg(long, default_value = "pure-pursuit")]
-    policy: String,
+    /// The driver under test (see `paddock drivers`).
+    #[arg(long, alias = "policy", default_value = "pure-pursuit")]
+    driver: String,
+    /// The driver's parameters: `name=value,...` or a full comma-separated vector.
     #[arg(long)]
     params: Option<String>,
-    /// B3's opponent driver.
+    /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
+    /// vehicle).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
+    /// B3's opponent driver (default: pure-pursuit).
     #[arg(long)]
     opponent: Option<String>,
+    /// The opponent's parameters: `name=value,...` or a full vector.
     #[arg(long)]
     opponent_params: Option<String>,
+    /// Map name or directory (default: the default shipped map).
     #[arg(long)]
     map: Option<String>,
-    #[arg(long, default_value_t = 20)]
+    /// Episodes to run.
+    #[arg(long, default_value_t = 20, value_parser = args::whole::<usize>(1, 1_000_000))]
     episodes: usize,
-    #[arg(long, default_value_t = 0)]
+    /// Benchmark seed: fixes every start and obstacle.
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
-    #[arg(long, default_value_t = 2)]
+    /// Laps per episode.
+    #[arg(long, default_value_t = 2, value_parser = args::whole::<u32>(1, 100))]
     laps: u32,
     /// B2's obstacle count.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = args::whole::<usize>(0, 1_000))]
     obstacles: usize,
-    #[arg(long, default_value_t = 180.0)]
+    /// Simulated seconds before an episode is cut off.
+    #[arg(long, default_value_t = 180.0, value_parser = args::above(0.0, 36_000.0))]
     time_limit: f64,
-    #[arg(long, default_value_t = 0)]
+    /// Worker threads (0: one per core; at most 4 per core).
+    #[arg(long, default_value_t = 0, value_parser = args::threads())]
     threads: usize,
     /// Run the episodes through the broker at this client endpoint instead of locally.
     #[arg(long, value_name = "URL")]
     endpoint: Option<String>,
+    /// Print the report as JSON.
     #[arg(long)]
     json: bool,
     /// Print a markdown table.
@@ -297,8 +318,10 @@ pub struct BenchmarkArgs {
 }
 
 pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
-    let mut policy = AgentSpec::with_defaults(&args.policy)?;
-    policy.params = parse_params(&args.policy, args.params.as_deref())?;
+    let vehicle = args::vehicle(args.vehicle.as_deref())?;
+    let mut policy = AgentSpec::with_defaults(&args.driver)?;
+    policy.params = parse_params(&args.driver, args.params.as_deref())?;
+    policy.vehicle = vehicle.clone();
     let opponent = match (&args.opponent, args.task) {
         (Some(o), _) => {
             let mut a = AgentSpec::with_defaults(o)?;
@@ -307,7 +330,11 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
         }
         (None, Task::B3) => Some(AgentSpec::with_defaults("pure-pursuit")?),
         (None, _) => None,
-    };
+    }
+    .map(|mut a| {
+        a.vehicle = vehicle.clone();
+        a
+    });
     let spec = BenchmarkSpec {
         task: args.task,
         map: args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into()),
@@ -357,20 +384,20 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     }
     let report = paddock_rollout::benchmark::report(&spec, &results);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        outln!("{}", serde_json::to_string_pretty(&report)?);
     } else if args.markdown {
-        print!("{}", BenchmarkReport::markdown(&[report]));
+        out!("{}", BenchmarkReport::markdown(&[report]));
     } else if args.markdown_row {
-        print!(
+        out!(
             "{}",
             BenchmarkReport::markdown(&[report])
                 .lines()
                 .nth(2)
                 .unwrap_or("")
         );
-        println!();
+        outln!();
     } else {
-        print!("{}", BenchmarkReport::table(&[report]));
+        out!("{}", BenchmarkReport::table(&[report]));
     }
     Ok(())
 }

@@ -11,6 +11,7 @@ use paddock_sysid::effects::EffectKind;
 use paddock_sysid::recording::CHANNELS;
 use paddock_sysid::{AnalysisOptions, McapTopics, Recording, Stage, analyze, report};
 
+use crate::args::{self, outln};
 use crate::{sysid_plots, sysid_synth};
 
 #[derive(Args, Debug)]
@@ -48,19 +49,19 @@ struct AnalyseArgs {
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
     /// Replay window [s].
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = args::number(0.2, 5.0))]
     window: f64,
     /// Cross-validation folds (contiguous time blocks).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = args::whole::<usize>(2, 10))]
     folds: usize,
     /// Held-out improvement an effect must beat, per parameter (0.03 = 3 %).
-    #[arg(long, default_value_t = 0.03)]
+    #[arg(long, default_value_t = 0.03, value_parser = args::number(0.0, 1.0))]
     margin: f64,
     /// Only test these effects (comma-separated names; default: all).
     #[arg(long, value_delimiter = ',')]
     effects: Vec<String>,
     /// Optimiser seed.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = args::seed())]
     seed: u64,
     /// Skip the plots.
     #[arg(long)]
@@ -204,7 +205,7 @@ pub fn run(args: &SysidArgs) -> Result<()> {
             )
         })
         .collect();
-    println!(
+    outln!(
         "effects: {}",
         if kept.is_empty() {
             "nothing significant".to_string()
@@ -212,14 +213,16 @@ pub fn run(args: &SysidArgs) -> Result<()> {
             kept.join(", ")
         }
     );
-    println!("held-out rmse  nominal -> fitted:");
+    outln!("held-out rmse  nominal -> fitted:");
     for (c, name) in CHANNELS.iter().enumerate() {
-        println!(
+        outln!(
             "  {:<9} {:>9.4} -> {:>9.4}",
-            name, analysis.rmse_before[c], analysis.rmse_after[c]
+            name,
+            analysis.rmse_before[c],
+            analysis.rmse_after[c]
         );
     }
-    println!(
+    outln!(
         "wrote {}/report.json, report.md, vehicle.yaml{} in {:.1} s",
         out.display(),
         if a.no_plots { "" } else { " and plots" },

@@ -9,6 +9,7 @@
 
 use std::path::PathBuf;
 
+use crate::args::{self, outln};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use paddock_policy::{PurePursuit, PurePursuitParams};
@@ -36,8 +37,9 @@ pub struct SynthArgs {
     /// Map name or directory.
     #[arg(long)]
     map: Option<String>,
-    /// Length of the recording [s] (default 60; with --manoeuvre, of each run: default 3).
-    #[arg(long)]
+    /// Length of the recording [s] (default 60, in [5, 3600]; with --manoeuvre, of each
+    /// run: default 3).
+    #[arg(long, value_parser = args::above(0.0, 3600.0))]
     seconds: Option<f64>,
     /// Short open-loop manoeuvres instead of laps (comma-separated, taken in turn):
     /// step (a steering step and its reversal), arc (constant radius), speed-step.
@@ -45,10 +47,10 @@ pub struct SynthArgs {
     manoeuvre: Vec<String>,
     /// Number of runs with --manoeuvre; --out is then a folder of run-NN.csv files and
     /// truth.json. Runs alternate low (1.5-2.5 m/s) and racing (4-5.5 m/s) speeds.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = args::whole(1, 1000))]
     runs: usize,
     /// Logging rate with --manoeuvre [Hz].
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = 40.0, value_parser = args::above(0.0, 1000.0))]
     rate: f64,
     /// Channels logged: `all`, or `pose+speed` (no vy, no yaw_rate, as a car with a
     /// localiser and the VESC's speed).
@@ -58,13 +60,13 @@ pub struct SynthArgs {
     #[arg(long, default_value = "mixed")]
     start: String,
     /// Seed of the noise, the disturbances and the logging jitter.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
     /// Lateral acceleration the driver plans with [m/s^2].
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 4.0, value_parser = args::above(0.0, 100.0))]
     lat_accel: f64,
     /// The driver's top speed [m/s].
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 6.0, value_parser = args::above(0.0, 100.0))]
     max_speed: f64,
     /// Nominal vehicle the effects are added to (default: the simulator's default).
     #[arg(long)]
@@ -103,14 +105,8 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         return run_day(args, full_state);
     }
     let seconds = args.seconds.unwrap_or(60.0);
-    if !(seconds.is_finite() && (5.0..=3600.0).contains(&seconds)) {
-        bail!("--seconds {seconds} must be in [5, 3600]");
-    }
-    if !(args.lat_accel.is_finite() && args.lat_accel > 0.0) {
-        bail!("--lat-accel {} must be > 0", args.lat_accel);
-    }
-    if !(args.max_speed.is_finite() && args.max_speed > 0.0) {
-        bail!("--max-speed {} must be > 0", args.max_speed);
+    if !(5.0..=3600.0).contains(&seconds) {
+        bail!("--seconds {seconds} is out of range: must be a number in [5, 3600] without --manoeuvre");
     }
     let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
@@ -265,7 +261,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     let sidecar = PathBuf::from(sidecar);
     std::fs::write(&sidecar, serde_json::to_string_pretty(&truth_json)?)
         .with_context(|| format!("writing {}", sidecar.display()))?;
-    println!(
+    outln!(
         "wrote {} ({} rows over {:.1} s on {}, hidden: {}) and {}",
         out.display(),
         rec.states.len(),

@@ -20,6 +20,7 @@ use paddock_rollout::{Executor, LocalExecutor, Scenario};
 use paddock_sim::track::{Circuit, DEFAULT_MAP};
 use plotters::style::RGBColor;
 
+use crate::args::{self, outln};
 use crate::plots;
 
 #[derive(Args)]
@@ -28,31 +29,37 @@ pub struct TuneArgs {
     #[arg(long)]
     pub map: Option<String>,
     /// Driver to tune (see `paddock drivers`).
-    #[arg(long, default_value = "pure-pursuit")]
-    pub policy: String,
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, alias = "policy", default_value = "pure-pursuit")]
+    pub driver: String,
+    /// Vehicle YAML (as `paddock sysid` writes it): tune for this car (default: the
+    /// f1tenth_gym vehicle).
+    #[arg(long, value_name = "FILE")]
+    pub vehicle: Option<PathBuf>,
+    /// CMA-ES generations.
+    #[arg(long, default_value_t = 60, value_parser = args::whole::<u32>(1, 10_000))]
     pub generations: u32,
     /// Candidates per generation.
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = 12, value_parser = args::whole::<usize>(2, 1_000))]
     pub popsize: usize,
     /// Seeded random starts each candidate is driven from.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = args::whole::<usize>(1, 1_000))]
     pub seeds: usize,
     /// Held-out starts for the final comparison.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = args::whole::<usize>(1, 10_000))]
     pub holdout: usize,
     /// Job seed: fixes the optimiser and every start.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     pub seed: u64,
     /// Added to a candidate's cost for an episode that does not finish its lap, seconds.
-    #[arg(long, default_value_t = 100.0)]
+    #[arg(long, default_value_t = 100.0, value_parser = args::above(0.0, 1e6))]
     pub crash_penalty: f64,
     /// Output directory.
     #[arg(long, default_value = "tune-out")]
     pub out: PathBuf,
-    /// Worker threads (0: one per core).
-    #[arg(long, default_value_t = 0)]
+    /// Worker threads (0: one per core; at most 4 per core).
+    #[arg(long, default_value_t = 0, value_parser = args::threads())]
     pub threads: usize,
+    /// Print the result document as JSON.
     #[arg(long)]
     pub json: bool,
     /// Run the job on the broker at this client endpoint instead of locally.
@@ -67,7 +74,7 @@ pub struct TuneArgs {
 pub fn setup(args: &TuneArgs) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
     let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
-    let info = driver_info(&args.policy)?;
+    let info = driver_info(&args.driver)?;
     let spec = TuneSpec {
         driver: info.name.to_string(),
         generations: args.generations,
@@ -79,6 +86,7 @@ pub fn setup(args: &TuneArgs) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
     };
     spec.validate()?;
     let mut base = Scenario::single(info.name)?;
+    base.agents[0].vehicle = args::vehicle(args.vehicle.as_deref())?;
     base.map = circuit.dir.display().to_string();
     base.laps = 1;
     base.time_limit = 60.0 + 0.5 * circuit.track.length();
@@ -154,6 +162,34 @@ pub fn run(args: &TuneArgs) -> Result<()> {
     )
 }
 
+/// The held-out comparison as printed: how many starts each side finished, their lap
+/// times, and an improvement only where [`TuneResult::improvement_pct`] claims one (never
+/// for a tuned driver that finishes fewer starts).
+pub fn holdout_summary(r: &TuneResult) -> Vec<String> {
+    let fmt = |e: &Evaluation| match (e.lap_time_mean, e.lap_time_std) {
+        (Some(m), Some(s)) => format!(
+            "finished {}/{} starts, lap time {m:.3} ± {s:.3} s",
+            e.finished, e.episodes
+        ),
+        _ => format!("finished 0/{} starts, no lap time", e.episodes),
+    };
+    let mut lines = vec![
+        format!("held-out comparison over {} starts:", r.holdout),
+        format!("  default: {}", fmt(&r.default)),
+        format!("  tuned:   {}", fmt(&r.tuned)),
+    ];
+    lines.push(match r.improvement_pct {
+        Some(p) if p >= 0.0 => format!("  improvement: {p:.1}% faster laps, as many starts finished or more"),
+        Some(p) => format!("  no improvement: tuned laps {:.1}% slower", -p),
+        None if r.tuned.finished < r.default.finished => format!(
+            "  no improvement: the tuned driver finished fewer held-out starts ({}/{} against {}/{})",
+            r.tuned.finished, r.tuned.episodes, r.default.finished, r.default.episodes
+        ),
+        None => "  no improvement measurable: a side finished no held-out start".to_string(),
+    });
+    lines
+}
+
 /// Wall-clock figures of a run (not part of the deterministic result).
 pub struct Timing {
     pub tuning_s: f64,
@@ -163,7 +199,7 @@ pub struct Timing {
 
 /// Writes result.json and the plots, and prints the result (or its JSON).
 pub fn report(args: &TuneArgs, circuit: &Circuit, r: &TuneResult, timing: Timing) -> Result<()> {
-    let info = driver_info(&r.policy)?;
+    let info = driver_info(&r.driver)?;
     let lap_length = circuit.track.length();
     let rollouts_per_s = timing.tuning_episodes as f64 / timing.tuning_s.max(1e-9);
     let named = |v: &[f64]| -> serde_json::Map<String, serde_json::Value> {
@@ -180,7 +216,7 @@ pub fn report(args: &TuneArgs, circuit: &Circuit, r: &TuneResult, timing: Timing
         .collect();
     let result = serde_json::json!({
         "map": circuit.name,
-        "policy": r.policy,
+        "driver": r.driver,
         "seed": r.seed,
         "generations": r.generations,
         "popsize": r.popsize,
@@ -252,14 +288,10 @@ pub fn report(args: &TuneArgs, circuit: &Circuit, r: &TuneResult, timing: Timing
     }
 
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&result)?);
+        outln!("{}", serde_json::to_string_pretty(&result)?);
         return Ok(());
     }
-    let fmt = |e: &Evaluation| match (e.lap_time_mean, e.lap_time_std) {
-        (Some(m), Some(s)) => format!("{m:.3} ± {s:.3} s ({}/{} finished)", e.finished, e.episodes),
-        _ => format!("no lap finished (0/{})", e.episodes),
-    };
-    println!(
+    outln!(
         "tuned {} on {} ({:.1} m): {} generations x {} candidates x {} starts, {:.1} s, {:.0} rollouts/s",
         info.name,
         circuit.name,
@@ -270,23 +302,76 @@ pub fn report(args: &TuneArgs, circuit: &Circuit, r: &TuneResult, timing: Timing
         timing.tuning_s,
         rollouts_per_s
     );
-    println!("held-out lap time over {} starts:", r.holdout);
-    println!("  default: {}", fmt(&r.default));
-    println!("  tuned:   {}", fmt(&r.tuned));
-    if let Some(p) = r.improvement_pct {
-        println!("  improvement: {p:.1}%");
+    for line in holdout_summary(r) {
+        outln!("{line}");
     }
-    println!("tuned parameters:");
+    outln!("tuned parameters:");
     for (s, (d, t)) in info
         .params
         .iter()
         .zip(r.default_params.iter().zip(&r.tuned_params))
     {
-        println!("  {:<18} {:>9.4}  (default {})", s.name, t, d);
+        outln!("  {:<18} {:>9.4}  (default {})", s.name, t, d);
     }
-    println!(
+    outln!(
         "wrote {}, convergence.png, tuned_lap.png",
         json_path.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(default: (usize, Option<f64>), tuned: (usize, Option<f64>)) -> TuneResult {
+        let eval = |(finished, mean): (usize, Option<f64>)| Evaluation {
+            episodes: 20,
+            finished,
+            lap_time_mean: mean,
+            lap_time_std: mean.map(|_| 0.2),
+        };
+        let (d, t) = (eval(default), eval(tuned));
+        TuneResult {
+            driver: "pure-pursuit".into(),
+            seed: 0,
+            generations: 1,
+            popsize: 4,
+            seeds: 2,
+            holdout: 20,
+            evaluations: 4,
+            episodes_run: 48,
+            best_fitness: 9.0,
+            chosen: "mean".into(),
+            default_params: vec![],
+            tuned_params: vec![],
+            improvement_pct: paddock_rollout::tune_job::improvement_pct(&d, &t),
+            default: d,
+            tuned: t,
+            history: vec![],
+            tuned_example: None,
+        }
+    }
+
+    #[test]
+    fn summary_never_claims_an_improvement_for_fewer_finished_starts() {
+        let text = holdout_summary(&result((20, Some(10.0)), (12, Some(8.0)))).join("\n");
+        assert!(text.contains("default: finished 20/20 starts"), "{text}");
+        assert!(text.contains("tuned:   finished 12/20 starts"), "{text}");
+        assert!(!text.contains("  improvement:"), "{text}");
+        assert!(
+            text.contains("finished fewer held-out starts (12/20 against 20/20)"),
+            "{text}"
+        );
+
+        let text = holdout_summary(&result((20, Some(10.0)), (20, Some(9.0)))).join("\n");
+        assert!(text.contains("improvement: 10.0% faster"), "{text}");
+
+        let text = holdout_summary(&result((15, Some(10.0)), (0, None))).join("\n");
+        assert!(
+            text.contains("tuned:   finished 0/20 starts, no lap time"),
+            "{text}"
+        );
+        assert!(!text.contains("  improvement:"), "{text}");
+    }
 }

@@ -275,6 +275,22 @@ fn fitted_vehicle_loads_and_replays_better_than_nominal() {
     check_found("yaml", &report, &truth, &dir);
     let fitted = VehicleParams::load(dir.join("out/vehicle.yaml")).unwrap();
     assert!(fitted.effects.steering_offset.is_some() && fitted.effects.drive_lag.is_some());
+    // the written file drives the simulator wherever it runs: `--vehicle` changes the laps
+    let yaml = dir.join("out/vehicle.yaml");
+    let lap = |vehicle: Option<&Path>| {
+        let mut args = vec!["rollout", "--episodes", "2", "--seed", "3", "--json"];
+        if let Some(v) = vehicle {
+            args.extend(["--vehicle", v.to_str().unwrap()]);
+        }
+        let (ok, out, err) = paddock(&args);
+        assert!(ok, "{err}");
+        serde_json::from_str::<Value>(&out).unwrap()["episodes"].clone()
+    };
+    assert_ne!(
+        lap(None),
+        lap(Some(&yaml)),
+        "the fitted car drives differently"
+    );
     let rec = Recording::load(&dir.join("rec.csv"), &McapTopics::default()).unwrap();
     let replay = Replay::new(&rec, 1.0);
     let nominal: f64 = replay.window_costs(&VehicleParams::default()).iter().sum();

@@ -1,11 +1,11 @@
 """Train an MLP driver with evolution strategies through the vector env.
 
-The policy is a small numpy MLP: the LIDAR scan (min-pooled to a few sectors, clipped
+The driver is a small numpy MLP: the LIDAR scan (min-pooled to a few sectors, clipped
 at 10 m) and the speed in, ``[steer, speed]`` out. OpenAI-style ES with antithetic
 pairs: every generation, each of the ``2 * pairs`` envs of ONE vector env session
 drives one perturbed copy of the weights from the same seeded start; the weights move
 along the rank-weighted perturbations. The reward (progress in metres, a lap bonus and
-a crash penalty) is computed on the worker. Training stops when the mean policy
+a crash penalty) is computed on the worker. Training stops when the mean driver
 completes a lap.
 
     python examples/es_mlp.py --endpoint tcp://127.0.0.1:5555
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
     n = 2 * args.pairs
     rng = np.random.default_rng(0)
     theta = rng.normal(0.0, 0.1, Mlp.size)
-    # envs 0..n-1 drive the perturbed members, env n the current mean policy
+    # envs 0..n-1 drive the perturbed members, env n the current mean driver
     env = paddock.make_vec(n + 1, args.endpoint, map=args.map, num_beams=SECTORS * 6,
                            time_limit=args.time_limit, frame_skip=args.frame_skip,
                            reward={"progress": 1.0, "collision": -20.0, "lap": 50.0, "time": 0.0})
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> dict:
             fitness, laps = evaluate(env, members, seed=g, max_steps=max_steps, steer_max=steer_max)
             history.append(float(fitness[n]))
             print(f"generation {g + 1}: members best {fitness[:n].max():.1f} mean "
-                  f"{fitness[:n].mean():.1f}; policy {fitness[n]:.1f} (laps {laps[n]})", flush=True)
+                  f"{fitness[:n].mean():.1f}; mean driver {fitness[n]:.1f} (laps {laps[n]})", flush=True)
             if laps[n] >= 1:
                 lapped = True
                 break

@@ -4,7 +4,9 @@ simulation runs on a Paddock broker's workers (ZeroMQ + protobuf).
 - ``gymnasium.make("paddock/F110-v0", endpoint="tcp://HOST:PORT", map="lakeside")``
   (``endpoint=None`` starts a local ``paddock serve``)
 - ``gymnasium.make_vec("paddock/F110-v0", num_envs=64, ...)`` or :func:`make_vec`
-- ``Client(endpoint).rollouts(policy, params, seeds)``, ``submit_tune``, ``jobs``
+- ``Client(endpoint).rollouts(driver, params, seeds)``, ``submit_tune``, ``jobs``
+- vehicle physics: ``params={...}`` (f1tenth_gym's keys) and ``vehicle="vehicle.yaml"``
+  (what ``paddock sysid`` writes) in ``gymnasium.make``; see :mod:`paddock.vehicle`
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Batch rollouts and jobs through a broker.
 
-``Client(endpoint).rollouts(policy, params, seeds)`` runs one episode per (parameter
+``Client(endpoint).rollouts(driver, params, seeds)`` runs one episode per (parameter
 vector, seed) on the broker's workers and returns numpy arrays in that order: the inner
 loop of evolution strategies and CMA-ES. ``submit_tune`` starts a tuning job that the
 broker runs and stores; ``jobs()`` lists them; ``Job.wait()`` follows one to its result.
@@ -9,9 +9,10 @@ broker runs and stores; ``jobs()`` lists them; ``Job.wait()`` follows one to its
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +22,7 @@ from . import errors
 from ._proto import paddock_pb2 as pb
 from .server import LocalServer
 from .transport import Connection
+from .vehicle import vehicle_yaml as _vehicle_yaml
 
 _COLLISION = {"terminate": pb.COLLISION_TERMINATE, "stop": pb.COLLISION_STOP,
               "ignore": pb.COLLISION_IGNORE}
@@ -30,12 +32,19 @@ _DONE_STATES = {pb.SUCCEEDED, pb.FAILED, pb.CANCELLED_JOB}
 
 @dataclass
 class RolloutResults:
-    """Car 0's results of ``P`` parameter vectors x ``S`` seeds, each array ``(P, S)``."""
+    """Car 0's results of ``P`` parameter vectors x ``S`` seeds, each array ``(P, S)``.
 
-    lap_time: np.ndarray        # first lap's time, s (nan: no lap completed)
+    ``lap_time`` is NaN exactly where the car completed no lap (it crashed or ran out of
+    time before its first lap; then ``finished`` is False). Every other array is finite.
+    Rank drivers with ``finished`` first: a fitness built on ``lap_time`` alone must
+    replace the NaNs (e.g. ``np.where(r.finished, r.lap_time, penalty)``), since NaN
+    compares false with everything and ``nanmean`` would drop exactly the failures.
+    """
+
+    lap_time: np.ndarray        # first lap's time, s (NaN: no lap completed)
     progress: np.ndarray        # metres along the track
     crashed: np.ndarray         # bool
-    finished: np.ndarray        # bool: completed the scenario's laps
+    finished: np.ndarray        # bool: completed the scenario's laps (lap_time is finite)
     episode_return: np.ndarray  # progress minus the crash penalty if crashed
     time: np.ndarray            # simulated seconds of the episode
     episodes: list[pb.EpisodeResult]  # every result, task order (params-major)
@@ -143,17 +152,22 @@ class Client:
         """Workers, queue depth and throughput of the broker."""
         return self.conn.status()
 
-    def rollouts(self, policy: str, params: Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+    def rollouts(self, driver: str, params: Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
                  seeds: Sequence[int] | np.ndarray, *, map: str = "lakeside", laps: int = 1,
                  time_limit: float = 120.0, crash_penalty: float = 100.0,
                  collision_mode: str = "terminate", num_beams: int = 1080,
                  opponents: Sequence[tuple[str, Sequence[float]]] = (),
+                 vehicle: str | os.PathLike[str] | None = None,
+                 vehicle_params: Mapping[str, float] | None = None,
                  timeout: float | None = None) -> RolloutResults:
-        """One episode per (parameter vector, seed) of driver ``policy`` on ``map``.
+        """One episode per (parameter vector, seed) of driver ``driver`` on ``map``.
 
         ``params``: one vector or a ``(P, D)`` array (the driver's parameters in its
         declared order, ``paddock drivers``); ``seeds``: ``S`` seeds. Results are
         ``(P, S)`` arrays in that order. A task the server refuses raises its error.
+        ``vehicle`` (a vehicle YAML path, as ``paddock sysid`` writes) and
+        ``vehicle_params`` (f1tenth_gym's keys, see :mod:`paddock.vehicle`) set every
+        car's physics.
         """
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         if p.ndim != 2:
@@ -164,11 +178,13 @@ class Client:
         if collision_mode not in _COLLISION:
             raise ValueError(f"collision_mode = {collision_mode!r} is not one of {sorted(_COLLISION)}")
         ref = self.conn.map_ref(map)
-        others = [pb.AgentSpec(driver=d, params=[float(v) for v in ps]) for d, ps in opponents]
+        car_yaml = _vehicle_yaml(vehicle_params, vehicle)
+        others = [pb.AgentSpec(driver=d, params=[float(v) for v in ps], vehicle_yaml=car_yaml)
+                  for d, ps in opponents]
         batch = pb.RolloutBatch()
         for row in p:
             batch.scenarios.append(pb.Scenario(
-                map=ref, agents=[pb.AgentSpec(driver=policy, params=row.tolist())] + others,
+                map=ref, agents=[pb.AgentSpec(driver=driver, params=row.tolist(), vehicle_yaml=car_yaml)] + others,
                 start_kind=pb.START_RANDOM, laps=int(laps), time_limit=float(time_limit),
                 collision_mode=_COLLISION[collision_mode],
                 lidar=pb.Lidar(num_beams=int(num_beams), fov=4.7, max_range=30.0, noise_std=0.01),
@@ -208,12 +224,16 @@ class Client:
 
     def submit_tune(self, driver: str = "pure-pursuit", *, map: str = "lakeside",
                     generations: int = 60, popsize: int = 12, seeds: int = 8, holdout: int = 20,
-                    seed: int = 0, crash_penalty: float = 100.0, name: str = "") -> Job:
+                    seed: int = 0, crash_penalty: float = 100.0, name: str = "",
+                    vehicle: str | os.PathLike[str] | None = None,
+                    vehicle_params: Mapping[str, float] | None = None) -> Job:
         """Start a tuning job (CMA-ES over the driver's parameters) run by the broker;
-        the defaults are those of ``paddock tune``."""
+        the defaults are those of ``paddock tune``. ``vehicle`` / ``vehicle_params``: the
+        car to tune for (as in :meth:`rollouts`)."""
         spec = pb.TuneSpec(map=self.conn.map_ref(map), driver=driver, generations=int(generations),
                            popsize=int(popsize), seeds=int(seeds), holdout=int(holdout),
-                           seed=int(seed) % 2**64, crash_penalty=float(crash_penalty))
+                           seed=int(seed) % 2**64, crash_penalty=float(crash_penalty),
+                           vehicle_yaml=_vehicle_yaml(vehicle_params, vehicle))
         info = self.conn.request("job_submit", pb.JobSubmit(name=name or f"tune {driver}", tune=spec),
                                  "job_info")
         return Job(self, info.job_id)

@@ -13,11 +13,16 @@ its laps; ``truncated`` = the time limit. The reward is computed on the worker f
 weights (``reward={"progress": 1.0, "collision": -10.0, "lap": 0.0, "time": 0.0}``:
 per metre of progress, per collision, per lap, per second); replace it in Python with a
 wrapper (e.g. ``gymnasium.wrappers.TransformReward``) using ``info["progress"]``.
+
+The cars' physics: ``params={"mu": 0.8, "m": 3.9, ...}`` with f1tenth_gym's keys (merged
+over its defaults) and/or ``vehicle="vehicle.yaml"`` (the file ``paddock sysid`` writes,
+fitted effects included); see :mod:`paddock.vehicle`. They apply to every car.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -29,6 +34,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from . import errors, wire
+from .vehicle import vehicle_yaml as _vehicle_yaml
 from ._proto import paddock_pb2 as pb
 from .render import DEFAULT_WIDTH, RENDER_MODES, Window, frames_of
 from .server import LocalServer
@@ -94,7 +100,9 @@ class EnvSession:
                  seed: int = 0, num_beams: int = 1080, fov: float = 4.7, max_range: float = 30.0,
                  lidar_noise: float = 0.01, laps: int = 1, time_limit: float = 120.0,
                  collision_mode: str = "terminate", reward: Mapping[str, float] | None = None,
-                 frame_skip: int = 1, vehicle_yaml: str = "", obstacles: int = 0) -> None:
+                 frame_skip: int = 1, vehicle_yaml: str = "", obstacles: int = 0,
+                 params: Mapping[str, float] | None = None,
+                 vehicle: str | os.PathLike[str] | None = None) -> None:
         if int(num_envs) < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be >= 1")
         if int(num_agents) < 1:
@@ -111,10 +119,14 @@ class EnvSession:
         elif len(opponents) != int(num_agents) - 1:
             raise ValueError(f"opponents: {len(opponents)} given for num_agents = {num_agents} "
                              f"(the learner drives car 0; give num_agents - 1 opponents)")
+        if vehicle_yaml and (params or vehicle is not None):
+            raise ValueError("give the vehicle as params= and/or vehicle=, or as vehicle_yaml=, not both")
+        vehicle_yaml = vehicle_yaml or _vehicle_yaml(params, vehicle)
         agents = []
         for o in opponents:
-            driver, params = (o, ()) if isinstance(o, str) else (o[0], o[1])
-            agents.append(pb.AgentSpec(driver=driver, params=[float(p) for p in params]))
+            driver, driver_params = (o, ()) if isinstance(o, str) else (o[0], o[1])
+            agents.append(pb.AgentSpec(driver=driver, params=[float(p) for p in driver_params],
+                                       vehicle_yaml=vehicle_yaml))
         self.conn = conn
         msg = pb.EnvOpen(
             map=conn.map_ref(map), num_envs=int(num_envs), seed=int(seed) % 2**64,

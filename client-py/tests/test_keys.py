@@ -24,7 +24,7 @@ def test_client_with_keys_gets_in_and_without_is_refused(monkeypatch: pytest.Mon
         subprocess.run([binary, "keys", "generate", "--out", keys], check=True,
                        stdout=subprocess.DEVNULL)
         broker = subprocess.Popen(
-            [binary, "broker", "--bind", front, "--workers", back, "--state", os.path.join(d, "state"),
+            [binary, "broker", "--bind", front, "--worker-bind", back, "--state", os.path.join(d, "state"),
              "--secret-key", os.path.join(keys, "broker.key"),
              "--client-keys", os.path.join(keys, "clients"),
              "--worker-keys", os.path.join(keys, "workers")],

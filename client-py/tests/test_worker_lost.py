@@ -33,7 +33,7 @@ def _cluster(workers: int) -> Iterator[tuple[str, list[subprocess.Popen]]]:
     binary = find_paddock()
     front, back = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory() as state:
-        broker = subprocess.Popen([binary, "broker", "--bind", front, "--workers", back,
+        broker = subprocess.Popen([binary, "broker", "--bind", front, "--worker-bind", back,
                                    "--state", state], stdout=subprocess.DEVNULL,
                                   stderr=subprocess.DEVNULL)
         procs = [subprocess.Popen([binary, "worker", "--connect", back, "--threads", "1",

@@ -157,14 +157,16 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
 pub struct BenchmarkReport {
     pub task: Task,
     pub map: String,
-    pub policy: String,
+    /// The driver under test (`policy` in reports written before the rename).
+    #[serde(alias = "policy")]
+    pub driver: String,
     pub opponent: Option<String>,
     pub episodes: usize,
     /// Laps counted in the lap time.
     pub laps_counted: usize,
     pub lap_time_mean: Option<f64>,
     pub lap_time_std: Option<f64>,
-    /// Episodes in which the policy completed every lap without a collision.
+    /// Episodes in which the driver completed every lap without a collision.
     pub success_rate: f64,
     pub crash_rate: f64,
     /// B3 only.
@@ -224,7 +226,7 @@ pub fn report(
             .first()
             .map(|e| e.map.clone())
             .unwrap_or_else(|| spec.map.clone()),
-        policy: spec.policy.driver.clone(),
+        driver: spec.policy.driver.clone(),
         opponent: spec.opponent.as_ref().map(|o| o.driver.clone()),
         episodes: results.len(),
         laps_counted: laps.len(),
@@ -247,7 +249,7 @@ impl BenchmarkReport {
         vec![
             self.task.to_string(),
             self.map.clone(),
-            self.policy.clone(),
+            self.driver.clone(),
             self.opponent.clone().unwrap_or_else(|| "-".into()),
             self.episodes.to_string(),
             lap,
@@ -260,7 +262,7 @@ impl BenchmarkReport {
     pub const HEADER: [&'static str; 9] = [
         "task",
         "map",
-        "policy",
+        "driver",
         "opponent",
         "episodes",
         "lap time [s]",

@@ -134,11 +134,28 @@ impl Evaluation {
     }
 }
 
+/// The held-out improvement of `tuned` over `default` in percent of the default's mean
+/// lap time. Claimed only when the tuned driver finishes at least as many held-out
+/// starts: a faster mean over fewer finished laps is no improvement (the starts it
+/// failed are the hard ones), so then there is none (`None`), as when either side
+/// finished nothing.
+pub fn improvement_pct(default: &Evaluation, tuned: &Evaluation) -> Option<f64> {
+    if tuned.finished < default.finished {
+        return None;
+    }
+    match (default.lap_time_mean, tuned.lap_time_mean) {
+        (Some(d), Some(t)) => Some(100.0 * (d - t) / d),
+        _ => None,
+    }
+}
+
 /// The outcome of a finished job: every figure is a pure function of the spec, the
 /// map and the drivers (no timings), so remote and local runs compare equal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TuneResult {
-    pub policy: String,
+    /// The tuned driver's name (`policy` in results stored before the rename).
+    #[serde(alias = "policy")]
+    pub driver: String,
     pub seed: u64,
     pub generations: usize,
     pub popsize: usize,
@@ -153,6 +170,8 @@ pub struct TuneResult {
     pub tuned_params: Vec<f64>,
     pub default: Evaluation,
     pub tuned: Evaluation,
+    /// See [`improvement_pct`]: `None` when the tuned driver finished fewer held-out
+    /// starts than the defaults, or either finished none.
     pub improvement_pct: Option<f64>,
     pub history: Vec<Generation>,
     /// The tuned car's first held-out episode, with its trajectory (for the lap plot).
@@ -372,13 +391,10 @@ impl TuneJob {
                 let (default_eps, tuned_eps) = results.split_at(self.spec.holdout);
                 let default = Evaluation::of(default_eps);
                 let tuned_eval = Evaluation::of(tuned_eps);
-                let improvement_pct = match (default.lap_time_mean, tuned_eval.lap_time_mean) {
-                    (Some(d), Some(t)) => Some(100.0 * (d - t) / d),
-                    _ => None,
-                };
+                let improvement_pct = improvement_pct(&default, &tuned_eval);
                 let status = self.optimizer.status();
                 self.result = Some(TuneResult {
-                    policy: self.spec.driver.clone(),
+                    driver: self.spec.driver.clone(),
                     seed: self.spec.seed,
                     generations: self.history.len(),
                     popsize: self.spec.popsize,
@@ -506,6 +522,35 @@ fn internal(reason: String) -> RolloutError {
 mod tests {
     use super::*;
     use crate::{Executor, LocalExecutor};
+
+    fn eval(finished: usize, mean: Option<f64>) -> Evaluation {
+        Evaluation {
+            episodes: 20,
+            finished,
+            lap_time_mean: mean,
+            lap_time_std: mean.map(|_| 0.1),
+        }
+    }
+
+    #[test]
+    fn no_improvement_is_claimed_for_a_driver_that_finishes_fewer_starts() {
+        // faster on the laps it finished, but 12/20 against 20/20: no claim
+        assert_eq!(
+            improvement_pct(&eval(20, Some(10.0)), &eval(12, Some(8.0))),
+            None
+        );
+        assert_eq!(improvement_pct(&eval(20, Some(10.0)), &eval(0, None)), None);
+        assert_eq!(improvement_pct(&eval(0, None), &eval(5, Some(9.0))), None);
+        // as many (or more) finished: the lap-time gain counts, a loss shows negative
+        assert_eq!(
+            improvement_pct(&eval(20, Some(10.0)), &eval(20, Some(9.0))),
+            Some(10.0)
+        );
+        assert_eq!(
+            improvement_pct(&eval(18, Some(10.0)), &eval(19, Some(11.0))),
+            Some(-10.0)
+        );
+    }
 
     fn small_job() -> TuneJob {
         let mut spec = TuneSpec::new("pure-pursuit");

@@ -301,6 +301,8 @@ struct Probe {
 impl VehicleParams {
     /// Parse and validate a YAML document: either the parameters at the top level or nested
     /// under a single top-level `params:` key. An empty document gives the defaults.
+    /// Several documents (separated by `---`) are layers: each one's keys replace the
+    /// earlier ones' (a vehicle file followed by overrides).
     pub fn from_yaml_str(text: &str) -> Result<Self, ParamsError> {
         Self::parse(text, None)
     }
@@ -333,6 +335,9 @@ impl VehicleParams {
         if !has_content {
             return Ok(Self::default());
         }
+        if serde_norway::Deserializer::from_str(text).nth(1).is_some() {
+            return Self::parse_layers(text, path);
+        }
         let nested = serde_norway::from_str::<Probe>(text)
             .map(|p| p.params.is_some())
             .unwrap_or(false);
@@ -343,6 +348,34 @@ impl VehicleParams {
         } else {
             serde_norway::from_str::<VehicleParams>(text).map_err(yaml_err)?
         };
+        params.validate()?;
+        Ok(params)
+    }
+
+    /// Several documents merged key by key, later ones winning (see [`Self::from_yaml_str`]).
+    fn parse_layers(text: &str, path: Option<&Path>) -> Result<Self, ParamsError> {
+        use serde_norway::Value;
+        let yaml_err = |message: String| ParamsError::Yaml {
+            path: path.map(Path::to_path_buf),
+            message,
+        };
+        let mut merged = serde_norway::Mapping::new();
+        for (i, doc) in serde_norway::Deserializer::from_str(text).enumerate() {
+            let map = match Value::deserialize(doc).map_err(|e| yaml_err(e.to_string()))? {
+                Value::Null => continue,
+                Value::Mapping(m) => m,
+                _ => return Err(yaml_err(format!("document {i} is not a mapping of keys"))),
+            };
+            let map = match map.get("params") {
+                Some(Value::Mapping(inner)) if map.len() == 1 => inner.clone(),
+                _ => map,
+            };
+            for (k, v) in map {
+                merged.insert(k, v);
+            }
+        }
+        let params: VehicleParams = serde_norway::from_value(Value::Mapping(merged))
+            .map_err(|e| yaml_err(e.to_string()))?;
         params.validate()?;
         Ok(params)
     }
@@ -560,6 +593,34 @@ mod tests {
             .effects;
         assert_eq!(e.drag.unwrap().c_lin, 0.5);
         assert!(e.steering_delay.is_none());
+    }
+
+    #[test]
+    fn later_documents_override_earlier_ones() {
+        let base = VehicleParams {
+            mu: 0.9,
+            m: 3.0,
+            effects: Effects {
+                drag: Some(Drag {
+                    c_lin: 0.1,
+                    c_quad: 0.0,
+                }),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let text = format!("{}---\nm: 4.25\nI: 0.05\n", base.to_yaml_string());
+        let p = VehicleParams::from_yaml_str(&text).unwrap();
+        assert_eq!((p.mu, p.m, p.inertia), (0.9, 4.25, 0.05));
+        assert_eq!(p.effects, base.effects);
+        let nested = VehicleParams::from_yaml_str("params:\n  mu: 0.7\n---\nmu: 0.8\n").unwrap();
+        assert_eq!(nested.mu, 0.8);
+        // an override is checked like any key: unknown names and bad values are refused
+        let e = VehicleParams::from_yaml_str("mu: 0.9\n---\nmass: 3.0\n").unwrap_err();
+        assert!(e.to_string().contains("mass"), "{e}");
+        let e = VehicleParams::from_yaml_str("mu: 0.9\n---\nm: -1.5\n").unwrap_err();
+        assert_eq!(e.field(), Some("m"), "{e}");
+        assert!(e.to_string().contains("-1.5"), "{e}");
     }
 
     #[test]

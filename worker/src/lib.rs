@@ -43,6 +43,7 @@ use std::time::{Duration, Instant};
 
 use paddock_proto::convert::{outcome_to_proto, task_from_assign};
 use paddock_proto::{Body, EnvOpen, ErrorCode, TaskAssign, TaskOutcome, TaskResult, error};
+use paddock_sim::params::VehicleParams;
 use paddock_sim::track::Circuit;
 
 use crate::liveness::{Backoff, Liveness};
@@ -97,6 +98,10 @@ pub struct WorkerConfig {
     /// no thread wake-up. Rollout tasks never arm it; an idle worker never spins. Zero:
     /// always block.
     pub spin: Duration,
+    /// The vehicle of every car whose request carries the default vehicle (which travels
+    /// as nothing): `paddock serve --vehicle`, so clients that name no vehicle drive the
+    /// fitted car. Requests that carry a vehicle are unaffected.
+    pub vehicle: VehicleParams,
 }
 
 /// The default [`WorkerConfig::spin`].
@@ -115,6 +120,19 @@ impl WorkerConfig {
             curve: Curve::Off,
             health_file: None,
             spin: DEFAULT_SPIN,
+            vehicle: VehicleParams::default(),
+        }
+    }
+}
+
+/// Gives `vehicle` to every car of `scenario` that has the default vehicle.
+fn default_vehicle(scenario: &mut Arc<paddock_rollout::Scenario>, vehicle: &VehicleParams) {
+    let stock = VehicleParams::default();
+    if scenario.agents.iter().any(|a| a.vehicle == stock) {
+        for a in &mut Arc::make_mut(scenario).agents {
+            if a.vehicle == stock {
+                a.vehicle = vehicle.clone();
+            }
         }
     }
 }
@@ -223,6 +241,7 @@ impl Worker {
         })?;
         let mut sessions = Sessions::new();
         sessions.set_map_cache(cache.clone());
+        sessions.set_default_vehicle(cfg.vehicle.clone());
         let endpoint = format!(
             "inproc://paddock-worker-results-{}-{seq}",
             std::process::id()
@@ -651,16 +670,23 @@ impl Worker {
         let tx = self.results_tx.clone();
         let circuits = self.circuits.clone();
         let stats = self.stats.clone();
+        let vehicle = (self.cfg.vehicle != VehicleParams::default())
+            .then(|| Arc::new(self.cfg.vehicle.clone()));
         self.pool.spawn(move || {
             let task_id = t.task_id;
             let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| {
                 keep_circuit(&circuits, &dir);
                 match task_from_assign(&t, &dir) {
-                    Ok(task) => outcome_to_proto(&paddock_rollout::run_episode(
-                        &task.scenario,
-                        task.seed,
-                        task.record,
-                    )),
+                    Ok(mut task) => {
+                        if let Some(v) = &vehicle {
+                            default_vehicle(&mut task.scenario, v);
+                        }
+                        outcome_to_proto(&paddock_rollout::run_episode(
+                            &task.scenario,
+                            task.seed,
+                            task.record,
+                        ))
+                    }
                     Err(e) => error_outcome(e),
                 }
             }))

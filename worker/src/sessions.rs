@@ -52,6 +52,8 @@ pub struct Sessions {
     /// Map name -> (hash of its local files, directory), computed once per name.
     local: HashMap<String, (String, PathBuf)>,
     renderers: Renderers,
+    /// Replaces the default vehicle of every car (see `WorkerConfig::vehicle`).
+    vehicle: Option<VehicleParams>,
 }
 
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> Error {
@@ -66,6 +68,20 @@ impl Sessions {
     /// Look maps up by hash in `cache` (the worker's map cache).
     pub fn set_map_cache(&mut self, cache: MapCache) {
         self.maps = Some(cache);
+    }
+
+    /// Cars whose request carries the default vehicle get `vehicle` instead.
+    pub fn set_default_vehicle(&mut self, vehicle: VehicleParams) {
+        self.vehicle = (vehicle != VehicleParams::default()).then_some(vehicle);
+    }
+
+    /// The vehicle of a request's YAML, or this worker's vehicle for the default one.
+    fn vehicle(&self, yaml: &str, prefix: &str) -> Result<VehicleParams, Error> {
+        let v = vehicle_from_yaml(yaml, prefix)?;
+        match &self.vehicle {
+            Some(mine) if v == VehicleParams::default() => Ok(mine.clone()),
+            _ => Ok(v),
+        }
     }
 
     /// How many sessions are open.
@@ -231,7 +247,7 @@ impl Sessions {
             opponents.push(AgentSpec {
                 driver: a.driver.clone(),
                 params,
-                vehicle: vehicle_from_yaml(&a.vehicle_yaml, &format!("opponents[{k}]"))?,
+                vehicle: self.vehicle(&a.vehicle_yaml, &format!("opponents[{k}]"))?,
             });
         }
         let collision_mode = match paddock_proto::CollisionMode::try_from(o.collision_mode) {
@@ -282,7 +298,7 @@ impl Sessions {
             num_envs: o.num_envs as usize,
             seed: o.seed,
             opponents,
-            vehicle: vehicle_from_yaml(&o.vehicle_yaml, "")?,
+            vehicle: self.vehicle(&o.vehicle_yaml, "")?,
             lidar,
             obstacles,
             laps: o.laps,
@@ -538,6 +554,33 @@ mod tests {
         ));
         assert_eq!(e.code, ErrorCode::NotFound as i32);
         assert_eq!(e.field, "env_close.session_id");
+    }
+
+    #[test]
+    fn a_worker_vehicle_replaces_only_the_default_one() {
+        let fitted = VehicleParams {
+            mu: 0.6,
+            ..Default::default()
+        };
+        let mut s = Sessions::new();
+        s.set_default_vehicle(fitted.clone());
+        let mut o = open_msg(1);
+        o.opponents = vec![paddock_proto::AgentSpec {
+            driver: "pure-pursuit".into(),
+            ..Default::default()
+        }];
+        let cfg = s.config_from_proto(&o).unwrap();
+        assert_eq!(cfg.vehicle, fitted);
+        assert_eq!(cfg.opponents[0].vehicle, fitted);
+        // a request that carries its own vehicle keeps it
+        let own = VehicleParams {
+            m: 4.0,
+            ..Default::default()
+        };
+        o.vehicle_yaml = own.to_yaml_string();
+        assert_eq!(s.config_from_proto(&o).unwrap().vehicle, own);
+        let plain = Sessions::new().config_from_proto(&open_msg(1)).unwrap();
+        assert_eq!(plain.vehicle, VehicleParams::default());
     }
 
     #[test]
