@@ -47,7 +47,7 @@ pub struct SynthArgs {
     manoeuvre: Vec<String>,
     /// Number of runs with --manoeuvre; --out is then a folder of run-NN.csv files and
     /// truth.json. Runs alternate low (1.5-2.5 m/s) and racing (4-5.5 m/s) speeds.
-    #[arg(long, default_value_t = 1, value_parser = args::whole(1, 1000))]
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 1000))]
     runs: usize,
     /// Logging rate with --manoeuvre [Hz].
     #[arg(long, default_value_t = 40.0, value_parser = args::above(0.0, 1000.0))]
