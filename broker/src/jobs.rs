@@ -260,8 +260,8 @@ impl JobWork {
                     .parse()
                     .map_err(|e: String| invalid("job_submit.benchmark.task".into(), e))?;
                 let (map, dir) = check_map(b.map.as_ref(), store, "job_submit.benchmark.map")?;
-                let policy =
-                    agent_from_proto(b.policy.as_ref(), &dir, "job_submit.benchmark.policy")?;
+                let driver =
+                    agent_from_proto(b.driver.as_ref(), &dir, "job_submit.benchmark.driver")?;
                 let opponent = match (&b.opponent, task) {
                     (Some(o), _) => Some(agent_from_proto(
                         Some(o),
@@ -278,7 +278,7 @@ impl JobWork {
                 let spec = BenchmarkSpec {
                     task,
                     map: dir.display().to_string(),
-                    policy,
+                    driver,
                     opponent,
                     episodes: b.episodes as usize,
                     seed: b.seed,

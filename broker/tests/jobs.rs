@@ -218,7 +218,7 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
     let bench = paddock_proto::BenchmarkSpec {
         task: "b1".into(),
         map: Some(map.clone()),
-        policy: Some(paddock_proto::AgentSpec {
+        driver: Some(paddock_proto::AgentSpec {
             driver: "pure-pursuit".into(),
             params: paddock_rollout::AgentSpec::with_defaults("pure-pursuit")
                 .unwrap()
@@ -255,7 +255,7 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
     let spec = paddock_rollout::benchmark::BenchmarkSpec {
         task: paddock_rollout::benchmark::Task::B1,
         map: circuit.dir.display().to_string(),
-        policy: paddock_rollout::AgentSpec::with_defaults("pure-pursuit").unwrap(),
+        driver: paddock_rollout::AgentSpec::with_defaults("pure-pursuit").unwrap(),
         opponent: None,
         episodes: 3,
         seed: 5,

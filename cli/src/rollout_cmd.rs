@@ -319,9 +319,9 @@ pub struct BenchmarkArgs {
 
 pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
-    let mut policy = AgentSpec::with_defaults(&args.driver)?;
-    policy.params = parse_params(&args.driver, args.params.as_deref())?;
-    policy.vehicle = vehicle.clone();
+    let mut driver = AgentSpec::with_defaults(&args.driver)?;
+    driver.params = parse_params(&args.driver, args.params.as_deref())?;
+    driver.vehicle = vehicle.clone();
     let opponent = match (&args.opponent, args.task) {
         (Some(o), _) => {
             let mut a = AgentSpec::with_defaults(o)?;
@@ -338,7 +338,7 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     let spec = BenchmarkSpec {
         task: args.task,
         map: args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into()),
-        policy,
+        driver,
         opponent,
         episodes: args.episodes,
         seed: args.seed,

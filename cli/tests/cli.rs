@@ -90,3 +90,42 @@ fn unknown_map_is_a_clear_error() {
     assert!(!ok);
     assert!(err.contains("--agents"), "{err}");
 }
+
+/// Regression: a short tune on lakeside finds a faster driver that crashes on one of the
+/// six held-out starts; the summary used to print "improvement: 34.9%" for it.
+#[test]
+fn tune_claims_no_improvement_for_a_driver_that_finishes_fewer_starts() {
+    let out = std::env::temp_dir().join(format!("paddock-cli-tune-{}", std::process::id()));
+    let args = [
+        "tune",
+        "--generations",
+        "2",
+        "--popsize",
+        "4",
+        "--seeds",
+        "2",
+        "--holdout",
+        "6",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let (ok, text, err) = paddock(&args);
+    assert!(ok, "{err}");
+    assert!(
+        text.contains("default: finished 6/6 starts")
+            && text.contains("tuned:   finished 5/6 starts"),
+        "{text}"
+    );
+    assert!(
+        text.contains(
+            "no improvement: the tuned driver finished fewer held-out starts (5/6 against 6/6)"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("  improvement:"), "{text}");
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("result.json")).unwrap()).unwrap();
+    assert!(doc["improvement_pct"].is_null(), "{doc}");
+    assert!(doc["tuned"]["lap_time_mean"].as_f64() < doc["default"]["lap_time_mean"].as_f64());
+    let _ = std::fs::remove_dir_all(&out);
+}

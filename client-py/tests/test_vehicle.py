@@ -147,3 +147,15 @@ def test_example_fitness_handles_unfinished_episodes() -> None:
     assert np.all(np.isfinite(c)), c
     # a driver that finishes every start beats one that is faster but fails one
     assert c[0] < c[1] < c[2], c
+
+
+def test_tune_jobs_carry_the_vehicle(client: paddock.Client) -> None:
+    with pytest.raises(errors.InvalidArgument) as e:
+        client.submit_tune("pure-pursuit", generations=1, popsize=2, seeds=1, holdout=1,
+                           vehicle_params={"m": -1.0})
+    assert e.value.field == "job_submit.tune.vehicle_yaml.m", e.value
+    job = client.submit_tune("pure-pursuit", generations=1, popsize=2, seeds=1, holdout=2,
+                             vehicle_params={"mu": 0.6})
+    result = job.wait(timeout=300)
+    assert result["driver"] == "pure-pursuit"
+    assert result["default"]["episodes"] == 2

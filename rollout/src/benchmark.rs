@@ -5,9 +5,9 @@
 //! - **B2, obstacles**: as B1 with seeded random static boxes on the track that the
 //!   driver is not told about (only a LIDAR driver can see them); success rate (all laps
 //!   without a collision) and the lap time of successful runs.
-//! - **B3, head to head**: the policy (car 0) against an opponent; episodes come in
+//! - **B3, head to head**: the driver under test (car 0) against an opponent; episodes come in
 //!   pairs with the same seed and the grid positions swapped; average lap time, crash
-//!   rate and win rate of the policy (it finishes, and before the opponent if both do).
+//!   rate and win rate of the driver (it finishes, and before the opponent if both do).
 
 use std::sync::Arc;
 
@@ -57,7 +57,9 @@ impl std::fmt::Display for Task {
 pub struct BenchmarkSpec {
     pub task: Task,
     pub map: String,
-    pub policy: AgentSpec,
+    /// The driver under test (car 0); `policy` in specs stored before the rename.
+    #[serde(alias = "policy")]
+    pub driver: AgentSpec,
     /// B3's opponent.
     pub opponent: Option<AgentSpec>,
     pub episodes: usize,
@@ -78,7 +80,7 @@ impl BenchmarkSpec {
                 reason: "must be 1..=100000".into(),
             });
         }
-        let mut agents = vec![self.policy.clone()];
+        let mut agents = vec![self.driver.clone()];
         if self.task == Task::B3 {
             let Some(opp) = &self.opponent else {
                 return Err(RolloutError::Invalid {
@@ -226,7 +228,7 @@ pub fn report(
             .first()
             .map(|e| e.map.clone())
             .unwrap_or_else(|| spec.map.clone()),
-        driver: spec.policy.driver.clone(),
+        driver: spec.driver.driver.clone(),
         opponent: spec.opponent.as_ref().map(|o| o.driver.clone()),
         episodes: results.len(),
         laps_counted: laps.len(),
