@@ -182,11 +182,16 @@ pub fn run(args: &PerfArgs) -> Result<()> {
     }
     outln!(
         "map {} ({} x {} cells of {} m), {} agent(s), one thread",
-        report.map, report.map_cells[0], report.map_cells[1], report.map_resolution, report.agents
+        report.map,
+        report.map_cells[0],
+        report.map_cells[1],
+        report.map_resolution,
+        report.agents
     );
     outln!(
         "  LIDAR path {} (CPU features: {})",
-        report.scan_path, report.cpu_features
+        report.scan_path,
+        report.cpu_features
     );
     if let Some(r) = report.agent_steps_per_s_scan {
         outln!("  agent-steps/s with 1080-beam scan: {r:>14.0}");

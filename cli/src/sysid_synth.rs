@@ -106,7 +106,9 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     }
     let seconds = args.seconds.unwrap_or(60.0);
     if !(5.0..=3600.0).contains(&seconds) {
-        bail!("--seconds {seconds} is out of range: must be a number in [5, 3600] without --manoeuvre");
+        bail!(
+            "--seconds {seconds} is out of range: must be a number in [5, 3600] without --manoeuvre"
+        );
     }
     let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
