@@ -235,6 +235,10 @@ struct SilArgs {
     /// f1tenth_system mounts the Hokuyo. Published on /tf_static.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     laser_x: f64,
+    /// Vehicle YAML (physics, and `laser_mount` with x, y, yaw, flipped, which then
+    /// places the simulated laser instead of --laser-x); default: the simulator's car.
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
     /// What a collision does: stop (put back and halted), terminate, ignore.
     #[arg(long, default_value = "stop")]
     collision: String,
@@ -463,7 +467,12 @@ fn sil(a: &SilArgs) -> Result<()> {
         collision_mode,
         wait_for_drive: a.wait_for_drive,
         tf: !a.no_tf,
-        ..SilOptions::default()
+        vehicle: match &a.vehicle {
+            Some(p) => {
+                VehicleParams::load(p).with_context(|| format!("--vehicle {}", p.display()))?
+            }
+            None => VehicleParams::default(),
+        },
     };
     let stop = stop_flag()?;
     eprintln!(
