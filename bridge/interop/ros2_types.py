@@ -10,7 +10,7 @@ definitions of Humble and later (the layouts have not changed since).
 from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint32
+from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint8, uint32
 
 
 @dataclass
@@ -134,3 +134,26 @@ class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformS
 @dataclass
 class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
     transforms: sequence[TransformStamped] = field(default_factory=list)
+
+
+# The ROS graph record (`ros_discovery_info`, rmw_dds_common) in the layout of Iron and
+# later: a Gid is 16 bytes (Humble's is 24: `uint8[24] data`).
+@dataclass
+class Gid16(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: array[uint8, 16] = field(default_factory=lambda: [0] * 16)
+
+
+@dataclass
+class NodeEntitiesInfo16(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: str = ""
+    node_name: str = ""
+    reader_gid_seq: sequence[Gid16] = field(default_factory=list)
+    writer_gid_seq: sequence[Gid16] = field(default_factory=list)
+
+
+@dataclass
+class ParticipantEntitiesInfo16(
+    IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
+):
+    gid: Gid16 = field(default_factory=Gid16)
+    node_entities_info_seq: sequence[NodeEntitiesInfo16] = field(default_factory=list)

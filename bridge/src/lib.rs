@@ -21,6 +21,7 @@
 //! MCAP files.
 
 pub mod drive;
+pub mod driver_spec;
 pub mod freshness;
 pub mod mount;
 pub mod msg;

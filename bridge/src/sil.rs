@@ -218,19 +218,37 @@ fn pose_transform(obs: &Observation, i: usize, stamp: Time, f: &Frames) -> Trans
     }
 }
 
-/// `frames.base` -> `frames.laser`: the LIDAR sits `mount_offset` ahead of the car's
-/// reference point (the point the pose and the scan's ray casting use).
-fn laser_transform(lidar: &LidarConfig, stamp: Time, f: &Frames) -> TransformStamped {
+/// `frames.base` -> `frames.laser`: where the simulated LIDAR sits, the vehicle's
+/// `laser_mount` when it has one, else `mount_offset` ahead of the car's reference point
+/// (the point the pose and the scan's ray casting use; 0 by default, as f1tenth_gym_ros).
+fn laser_transform(
+    lidar: &LidarConfig,
+    vehicle: &VehicleParams,
+    stamp: Time,
+    f: &Frames,
+) -> TransformStamped {
+    let (x, y, yaw, flipped) = match vehicle.laser_mount {
+        Some(m) => (m.x, m.y, m.yaw, m.flipped),
+        None => (lidar.mount_offset, 0.0, 0.0, false),
+    };
+    let (s, c) = libm::sincos(0.5 * yaw);
+    // a yaw about z, then (upside down) a half turn about x
+    let rotation = if flipped {
+        Quaternion {
+            x: c,
+            y: s,
+            z: 0.0,
+            w: 0.0,
+        }
+    } else {
+        Quaternion::from_yaw(yaw)
+    };
     TransformStamped {
         header: Header::new(stamp, &f.base),
         child_frame_id: f.laser.clone(),
         transform: Transform {
-            translation: Vector3 {
-                x: lidar.mount_offset,
-                y: 0.0,
-                z: 0.0,
-            },
-            rotation: Quaternion::default(),
+            translation: Vector3 { x, y, z: 0.0 },
+            rotation,
         },
     }
 }
@@ -328,7 +346,7 @@ pub fn run_sil(
         let stamp = Time::from_secs(epoch_now());
         let transforms = cars
             .iter()
-            .map(|car| laser_transform(&options.lidar, stamp, &car.frames))
+            .map(|car| laser_transform(&options.lidar, &options.vehicle, stamp, &car.frames))
             .collect();
         publish(&statics, &t.tf_static, TFMessage { transforms });
         // kept alive with the node: late subscribers get the static transforms from it

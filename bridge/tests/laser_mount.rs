@@ -121,3 +121,57 @@ fn ttc_is_measured_in_base_link_from_the_lasers_station() {
     let ttc = Safety::time_to_collision_from(&UPSIDE_DOWN, &scan, 4.0, 0.2);
     assert!(ttc.is_finite() && ttc < 0.25, "{ttc}");
 }
+
+mod common;
+
+/// The SIL car with a laser mount in its vehicle parameters publishes that mount on
+/// /tf_static, which the drive node reads back as the same mount.
+#[test]
+fn the_sil_car_publishes_its_vehicle_laser_mount() {
+    use paddock_bridge::msg::TFMessage;
+    use paddock_bridge::ros::{Frames, RosConfig, RosNode, take_all};
+    use paddock_bridge::sil::SilOptions;
+    use paddock_sim::params::LaserMount as SimMount;
+    use std::time::{Duration, Instant};
+
+    let ros = RosConfig {
+        domain_id: 66,
+        frames: Frames::f1tenth_gym_ros(),
+        ..RosConfig::default()
+    };
+    let vehicle = VehicleParams {
+        laser_mount: Some(SimMount {
+            x: 0.27,
+            y: 0.01,
+            yaw: 0.1,
+            flipped: true,
+        }),
+        ..VehicleParams::default()
+    };
+    let sil = common::SilThread::start(
+        SilOptions {
+            map: "lakeside".into(),
+            seconds: Some(30.0),
+            vehicle,
+            ..SilOptions::default()
+        },
+        &ros,
+    );
+    let mut node = RosNode::new("tf_static_listener", &ros).unwrap();
+    let sub = node.static_subscription::<TFMessage>("/tf_static").unwrap();
+    let t0 = Instant::now();
+    let mut got = Vec::new();
+    while got.is_empty() && t0.elapsed() < Duration::from_secs(10) {
+        got = take_all(&sub, "/tf_static");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    sil.stop();
+    let t = &got.last().expect("a /tf_static message").transforms[0];
+    assert_eq!(t.header.frame_id, "ego_racecar/base_link");
+    let m = LaserMount::from_transform(&t.transform).unwrap();
+    assert!(
+        (m.x - 0.27).abs() < 1e-12 && (m.y - 0.01).abs() < 1e-12 && (m.yaw - 0.1).abs() < 1e-9,
+        "{m:?}"
+    );
+    assert!(m.flipped);
+}

@@ -253,6 +253,10 @@ struct SilArgs {
     /// f1tenth_system mounts the Hokuyo. Published on /tf_static.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = args::number(-1.0, 1.0))]
     laser_x: f64,
+    /// Vehicle YAML (physics, and `laser_mount` with x, y, yaw, flipped, which then
+    /// places the simulated laser instead of --laser-x); default: the simulator's car.
+    #[arg(long)]
+    vehicle: Option<PathBuf>,
     /// What a collision does: stop (put back and halted), terminate, ignore.
     #[arg(long, default_value = "stop")]
     collision: String,

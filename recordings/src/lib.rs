@@ -235,7 +235,6 @@ pub fn read_mcap(bytes: &[u8], path: &Path, topics: &[&str]) -> Result<Bag, Reco
             file_bytes: bytes.len() as u64,
             error,
         };
-        tracing::warn!(path = %path.display(), "{t}");
         Some(t)
     };
     messages.sort_by_key(|m| m.log_time);

@@ -173,6 +173,18 @@ impl Effects {
     }
 }
 
+/// Where the LIDAR sits on the car: position relative to the reference point
+/// (`base_link`) [m], yaw [rad], and mounted upside down (its beams then sweep
+/// clockwise), as the car's `base_link -> laser` transform says.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LaserMount {
+    pub x: f64,
+    pub y: f64,
+    pub yaw: f64,
+    pub flipped: bool,
+}
+
 /// One car's physical parameters and model options.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -217,6 +229,10 @@ pub struct VehicleParams {
     pub kinematic_branch: KinematicBranch,
     #[serde(skip_serializing_if = "Effects::all_off")]
     pub effects: Effects,
+    /// The LIDAR's mount on this car (None: the world's `lidar.mount_offset`, straight
+    /// ahead, as the reference simulator).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub laser_mount: Option<LaserMount>,
 }
 
 impl Default for VehicleParams {
@@ -245,6 +261,7 @@ impl Default for VehicleParams {
             integrator: Integrator::Rk4,
             kinematic_branch: KinematicBranch::Main,
             effects: Effects::default(),
+            laser_mount: None,
         }
     }
 }
@@ -418,6 +435,16 @@ impl VehicleParams {
             self.s_min < s_max,
             &format!("< s_max = {s_max}"),
         )?;
+        if let Some(m) = &self.laser_mount {
+            check("laser_mount.x", m.x, m.x.abs() <= 5.0, "within +-5 m")?;
+            check("laser_mount.y", m.y, m.y.abs() <= 5.0, "within +-5 m")?;
+            check(
+                "laser_mount.yaw",
+                m.yaw,
+                m.yaw.abs() <= 7.0,
+                "within +-7 rad",
+            )?;
+        }
         self.effects.validate()
     }
 }

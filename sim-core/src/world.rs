@@ -698,8 +698,28 @@ impl World {
                     .map(|(_, o)| *o),
             );
             self.seen.extend_from_slice(&state.obstacles);
-            // the LIDAR places its origin `mount_offset` ahead of the pose itself
-            self.lidar.scan(&self.circuit.map, pose, &self.seen, out);
+            match self.config.agents[i].params.laser_mount {
+                // the LIDAR places its origin `mount_offset` ahead of the pose itself
+                None => self.lidar.scan(&self.circuit.map, pose, &self.seen, out),
+                Some(m) => {
+                    // this car's mount replaces `mount_offset`: the origin at (x, y) in
+                    // the car's frame, looking along `yaw` (the LIDAR adds its offset back)
+                    let (s, c) = libm::sincos(pose.theta);
+                    let heading = pose.theta + m.yaw;
+                    let (hs, hc) = libm::sincos(heading);
+                    let off = self.config.lidar.mount_offset;
+                    let origin = Pose::new(
+                        pose.x + m.x * c - m.y * s - off * hc,
+                        pose.y + m.x * s + m.y * c - off * hs,
+                        heading,
+                    );
+                    self.lidar.scan(&self.circuit.map, origin, &self.seen, out);
+                    if m.flipped {
+                        // upside down, the beams sweep clockwise
+                        out.reverse();
+                    }
+                }
+            }
             if self.config.lidar.noise_std > 0.0 {
                 self.lidar.add_noise(out, &mut agent.noise);
             }

@@ -187,6 +187,62 @@ fn a_mounted_laser_scans_from_its_mount_once() {
     assert_ne!(mounted, at_base);
 }
 
+/// A laser mount in the vehicle parameters: the default (none) is today's scan; a mount
+/// 0.25 m ahead scans from there; an upside-down one sweeps the other way.
+#[test]
+fn a_vehicle_laser_mount_moves_and_flips_the_scan() {
+    use paddock_sim::params::{LaserMount, VehicleParams};
+    let p0 = Pose::new(R, 0.0, std::f64::consts::FRAC_PI_2);
+    let scan = |mount: Option<LaserMount>, pose: Pose| {
+        let mut cfg = WorldConfig::with_agents(1);
+        cfg.lidar.noise_std = 0.0;
+        cfg.agents[0].params = VehicleParams {
+            laser_mount: mount,
+            ..VehicleParams::default()
+        };
+        let mut w = World::new(ring(), cfg).unwrap();
+        w.reset(0, &Starts::Poses(vec![pose])).unwrap();
+        w.observation().unwrap().scan(0).to_vec()
+    };
+    let base = scan(None, p0);
+    assert_eq!(scan(Some(LaserMount::default()), p0), base);
+    let ahead = Pose::new(R, 0.25, std::f64::consts::FRAC_PI_2);
+    let mounted = scan(
+        Some(LaserMount {
+            x: 0.25,
+            ..LaserMount::default()
+        }),
+        p0,
+    );
+    let from_ahead = scan(None, ahead);
+    for (a, b) in mounted.iter().zip(&from_ahead) {
+        assert!((a - b).abs() < 1e-9, "{a} vs {b}");
+    }
+    let mut flipped = scan(
+        Some(LaserMount {
+            flipped: true,
+            ..LaserMount::default()
+        }),
+        p0,
+    );
+    flipped.reverse();
+    assert_eq!(flipped, base);
+    // the YAML: absent by default (files written before stay byte-identical), read back
+    let text = VehicleParams::default().to_yaml_string();
+    assert!(!text.contains("laser_mount"), "{text}");
+    let p = VehicleParams::from_yaml_str("laser_mount: {x: 0.27, flipped: true}\n").unwrap();
+    assert_eq!(
+        p.laser_mount,
+        Some(LaserMount {
+            x: 0.27,
+            flipped: true,
+            ..LaserMount::default()
+        })
+    );
+    let e = VehicleParams::from_yaml_str("laser_mount: {x: .nan}\n").unwrap_err();
+    assert!(e.to_string().contains("laser_mount.x"), "{e}");
+}
+
 fn crash_world(mode: CollisionMode) -> World {
     let mut cfg = WorldConfig::with_agents(1);
     cfg.collision_mode = mode;
