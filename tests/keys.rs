@@ -140,9 +140,24 @@ fn only_allowed_keys_get_in() {
     // no key at all
     let out = paddock(&["status", "--endpoint", &front]);
     assert!(!out.status.success(), "a client without keys got in");
-    // a key the broker does not know
+    // a key the broker does not know: refused, and the client says so with the key's
+    // fingerprint (not "no reply within 10s")
+    let t0 = Instant::now();
     let out = status_with(&front, &stranger.join("client.key"), &broker_pub);
+    let took = t0.elapsed();
     assert!(!out.status.success(), "a client with an unknown key got in");
+    let stranger_public =
+        paddock_broker::curve::read_public(&stranger.join("client.key")).expect("stranger key");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("refused this client's key")
+            && stderr.contains(&paddock_broker::curve::fingerprint(&stranger_public)),
+        "the refused client was not told why: {stderr}"
+    );
+    assert!(
+        took < Duration::from_secs(9),
+        "the refusal took {took:?}, as long as the reply timeout"
+    );
     // bob works until his public key is removed
     let out = status_with(&front, &keys.join("bob.key"), &broker_pub);
     assert!(
