@@ -38,6 +38,21 @@ fn only_allowed_keys_get_in() {
         keys.to_str().expect("utf-8 path"),
     ]);
     assert!(out.status.success(), "{out:?}");
+    // secret key files are private (created 0600, never chmod-ed later), public ones not
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = |p: &str| {
+            std::fs::metadata(keys.join(p))
+                .expect("key file")
+                .permissions()
+                .mode()
+                & 0o777
+        };
+        for secret in ["broker.key", "worker.key", "client.key"] {
+            assert_eq!(mode(secret), 0o600, "{secret}");
+        }
+        assert_eq!(mode("broker.pub") & 0o600, 0o600);
+    }
     // a second client, to be revoked, and a stranger the broker never saw
     let out = paddock(&[
         "keys",
