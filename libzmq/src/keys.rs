@@ -66,7 +66,7 @@ pub const KEY_Z85_LEN: usize = 40;
 /// the text (it may be a secret).
 pub fn z85_decode(text: &str) -> Result<Vec<u8>, String> {
     let bytes = text.as_bytes();
-    if bytes.len() % 5 != 0 {
+    if !bytes.len().is_multiple_of(5) {
         return Err(format!(
             "{} characters is not a multiple of 5, so not Z85",
             bytes.len()
