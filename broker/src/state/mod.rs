@@ -334,10 +334,21 @@ mod tests {
     use super::*;
 
     fn bundle() -> paddock_proto::MapBundle {
-        let files = vec![paddock_proto::MapFile {
-            name: "x_map.yaml".into(),
-            data: b"image: x.png\n".to_vec(),
-        }];
+        let png = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../maps/lakeside/lakeside_map.png"
+        );
+        let files = vec![
+            paddock_proto::MapFile {
+                name: "x_map.yaml".into(),
+                data: b"image: x.png\n".to_vec(),
+            },
+            // a bundle's image must be one of its files (check_bundle)
+            paddock_proto::MapFile {
+                name: "x.png".into(),
+                data: std::fs::read(png).unwrap(),
+            },
+        ];
         paddock_proto::MapBundle {
             hash: paddock_proto::bundle_hash(&files),
             name: "x".into(),
