@@ -38,6 +38,21 @@ fn only_allowed_keys_get_in() {
         keys.to_str().expect("utf-8 path"),
     ]);
     assert!(out.status.success(), "{out:?}");
+    // secret key files are private (created 0600, never chmod-ed later), public ones not
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = |p: &str| {
+            std::fs::metadata(keys.join(p))
+                .expect("key file")
+                .permissions()
+                .mode()
+                & 0o777
+        };
+        for secret in ["broker.key", "worker.key", "client.key"] {
+            assert_eq!(mode(secret), 0o600, "{secret}");
+        }
+        assert_eq!(mode("broker.pub") & 0o600, 0o600);
+    }
     // a second client, to be revoked, and a stranger the broker never saw
     let out = paddock(&[
         "keys",
@@ -140,9 +155,24 @@ fn only_allowed_keys_get_in() {
     // no key at all
     let out = paddock(&["status", "--endpoint", &front]);
     assert!(!out.status.success(), "a client without keys got in");
-    // a key the broker does not know
+    // a key the broker does not know: refused, and the client says so with the key's
+    // fingerprint (not "no reply within 10s")
+    let t0 = Instant::now();
     let out = status_with(&front, &stranger.join("client.key"), &broker_pub);
+    let took = t0.elapsed();
     assert!(!out.status.success(), "a client with an unknown key got in");
+    let stranger_public =
+        paddock_broker::curve::read_public(&stranger.join("client.key")).expect("stranger key");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("refused this client's key")
+            && stderr.contains(&paddock_broker::curve::fingerprint(&stranger_public)),
+        "the refused client was not told why: {stderr}"
+    );
+    assert!(
+        took < Duration::from_secs(9),
+        "the refusal took {took:?}, as long as the reply timeout"
+    );
     // bob works until his public key is removed
     let out = status_with(&front, &keys.join("bob.key"), &broker_pub);
     assert!(

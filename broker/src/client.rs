@@ -33,6 +33,10 @@ pub enum ClientError {
     Remote(paddock_proto::Error),
     #[error("undecodable reply: {0}")]
     Protocol(String),
+    /// The broker did not let this client in (its CURVE key is not allowed, or the
+    /// handshake failed): reported as soon as libzmq sees it, not after the timeout.
+    #[error(transparent)]
+    Refused(#[from] paddock_libzmq::HandshakeFailure),
 }
 
 impl ClientError {
@@ -53,6 +57,8 @@ fn zmq_err(what: &'static str) -> impl FnOnce(zmq::Error) -> ClientError {
 pub struct Client {
     _ctx: zmq::Context,
     socket: zmq::Socket,
+    /// Handshake failures of a CURVE connection (None on plain TCP).
+    handshake: Option<paddock_libzmq::HandshakeMonitor>,
     next_id: u64,
     /// How long [`Client::request`] waits for a reply.
     pub timeout: Duration,
@@ -73,10 +79,18 @@ impl Client {
         let socket = ctx.socket(zmq::DEALER).map_err(zmq_err("socket"))?;
         curve.apply(&socket).map_err(zmq_err("curve"))?;
         socket.set_linger(0).map_err(zmq_err("linger"))?;
+        let handshake = match curve {
+            Curve::Client { keys, .. } => Some(
+                paddock_libzmq::HandshakeMonitor::start(&ctx, &socket, &keys.public)
+                    .map_err(zmq_err("monitor"))?,
+            ),
+            _ => None,
+        };
         socket.connect(endpoint).map_err(zmq_err("connect"))?;
         Ok(Self {
             _ctx: ctx,
             socket,
+            handshake,
             next_id: 1,
             timeout: Duration::from_secs(60),
             spin: crate::server::DEFAULT_SPIN,
@@ -102,10 +116,29 @@ impl Client {
             std::thread::yield_now();
             ready = self.socket.poll(zmq::POLLIN, 0).map_err(zmq_err("poll"))?;
         }
-        if ready == 0 {
+        while ready == 0 {
             let left = timeout.saturating_sub(t0.elapsed());
             let ms = left.as_millis().min(i64::MAX as u128) as i64;
-            ready = self.socket.poll(zmq::POLLIN, ms).map_err(zmq_err("poll"))?;
+            let Some(handshake) = &self.handshake else {
+                ready = self.socket.poll(zmq::POLLIN, ms).map_err(zmq_err("poll"))?;
+                break;
+            };
+            // wait for the reply or a refusal of this client's key, whichever comes first
+            let mut items = [
+                self.socket.as_poll_item(zmq::POLLIN),
+                handshake.socket().as_poll_item(zmq::POLLIN),
+            ];
+            zmq::poll(&mut items, ms).map_err(zmq_err("poll"))?;
+            let (reply, event) = (items[0].is_readable(), items[1].is_readable());
+            if reply {
+                ready = 1;
+            } else if event {
+                if let Some(failure) = handshake.failure() {
+                    return Err(ClientError::Refused(failure));
+                }
+            } else {
+                break;
+            }
         }
         if ready == 0 {
             return Err(ClientError::Timeout(timeout));

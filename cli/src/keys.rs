@@ -56,25 +56,9 @@ pub struct GenerateArgs {
     pub json: bool,
 }
 
+/// Writes a key file atomically (mode 0600 from its creation for a secret key).
 fn write_new(path: &Path, text: &str, force: bool, secret: bool) -> Result<()> {
-    if path.exists() && !force {
-        bail!(
-            "{} exists; pass --force to overwrite it (old keys stop working)",
-            path.display()
-        );
-    }
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
-    #[cfg(unix)]
-    if secret {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600))
-            .with_context(|| format!("restricting {}", path.display()))?;
-    }
-    #[cfg(not(unix))]
-    let _ = secret;
+    paddock_libzmq::write_key_file(path, text, secret, force)?;
     Ok(())
 }
 

@@ -24,6 +24,19 @@ class BrokerUnavailable(PaddockError):
         )
 
 
+class KeyRefused(PaddockError):
+    """The broker's authenticator refused this client's CURVE key (or the CURVE handshake
+    failed): reported as soon as the handshake fails, not after the reply timeout."""
+
+    def __init__(self, endpoint: str, fingerprint: str, detail: str) -> None:
+        self.endpoint = endpoint
+        self.fingerprint = fingerprint
+        super().__init__(
+            f"the Paddock broker at {endpoint} refused this client's key "
+            f"(fingerprint {fingerprint}): {detail}"
+        )
+
+
 class ServerError(PaddockError):
     """An error reply from the broker or a worker."""
 

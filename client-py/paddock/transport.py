@@ -24,23 +24,74 @@ PROTOCOL_VERSION = 1
 DEFAULT_TIMEOUT = 30.0
 
 
-def _read_key(path: str, name: str) -> bytes:
-    """The Z85 value of ``name = "..."`` in a key file written by ``paddock keys generate``."""
+Z85_ALPHABET = "0123456789abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ.-:+=^!/*?&<>()[]{}@%$#"
+
+
+def _check_z85_key(value: str) -> str | None:
+    """What is wrong with a Z85 CURVE key (never repeating it: it may be secret), or None."""
+    if len(value) != 40:
+        return f"has {len(value)} characters; a Z85 CURVE key has 40"
+    for i, c in enumerate(value):
+        if c not in Z85_ALPHABET:
+            return f"character {i + 1} is not in the Z85 alphabet"
+    for g in range(0, 40, 5):
+        n = 0
+        for c in value[g:g + 5]:
+            n = n * 85 + Z85_ALPHABET.index(c)
+        if n >= 1 << 32:
+            return f"characters {g + 1}..{g + 5} overflow 32 bits"
+    return None
+
+
+def fingerprint(public: bytes) -> str:
+    """The first 8 hex digits of the SHA-256 of a Z85 public key's 32 bytes: the same
+    fingerprint the broker logs when it refuses a key and the ``paddock`` CLI reports."""
+    import hashlib
+
+    from zmq.utils import z85
+
+    return hashlib.sha256(z85.decode(public)).hexdigest()[:8]
+
+
+def _read_keys(path: str) -> dict[str, bytes]:
+    """The checked Z85 keys (``public``, ``secret``) of a key file written by ``paddock keys
+    generate``; a secret key must belong to the file's public key."""
     try:
         text = open(path, encoding="utf-8").read()
     except OSError as e:
         raise errors.PaddockError(f"key file {path}: {e}") from e
-    for line in text.splitlines():
+    keys: dict[str, bytes] = {}
+    for n, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if line.startswith("#") or "=" not in line:
             continue
         key, _, value = line.partition("=")
-        if key.strip() == name:
-            value = value.strip().strip('"')
-            if len(value) != 40:
-                raise errors.PaddockError(f"key file {path}: {name} key {value!r} is not 40 Z85 characters")
-            return value.encode()
-    raise errors.PaddockError(f"key file {path}: no `{name} = \"...\"` line")
+        name = key.strip().removesuffix("-key")
+        value = value.strip().strip('"')
+        if name not in ("public", "secret"):
+            raise errors.PaddockError(f"key file {path}: line {n}: unknown entry {key.strip()!r}")
+        wrong = _check_z85_key(value)
+        if wrong is not None:
+            raise errors.PaddockError(f"key file {path}: line {n}: field `{name}`: {wrong}")
+        keys[name] = value.encode()
+    if "secret" in keys:
+        if "public" not in keys:
+            raise errors.PaddockError(f"key file {path}: no `public = \"...\"` line beside the secret key")
+        derived = zmq.curve_public(keys["secret"])
+        if derived != keys["public"]:
+            raise errors.PaddockError(
+                f"key file {path}: field `secret`: its public key (fingerprint {fingerprint(derived)}) "
+                f"is not the file's `public` (fingerprint {fingerprint(keys['public'])}): "
+                "the two halves come from different key pairs")
+    return keys
+
+
+def _read_key(path: str, name: str) -> bytes:
+    """The Z85 value of ``name = "..."`` in a key file written by ``paddock keys generate``."""
+    value = _read_keys(path).get(name)
+    if value is None:
+        raise errors.PaddockError(f"key file {path}: no `{name} = \"...\"` line")
+    return value
 
 
 def curve_keys() -> tuple[bytes, bytes, bytes] | None:
@@ -75,6 +126,8 @@ class Connection:
         self._lock = threading.Lock()
         self._maps: dict[str, pb.MapRef] = {}
         self._sock: zmq.Socket | None = None
+        self._monitor: zmq.Socket | None = None
+        self._fingerprint = ""
         self._connect()
 
     def _connect(self) -> None:
@@ -85,12 +138,21 @@ class Connection:
             s.curve_publickey = public
             s.curve_secretkey = secret
             s.curve_serverkey = server
+            # a refused key never gets a reply: watch the handshake to say so at once
+            self._fingerprint = fingerprint(public)
+            self._monitor = s.get_monitor_socket(
+                zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL)
         s.setsockopt(zmq.LINGER, 0)
         s.setsockopt(zmq.SNDTIMEO, int(self.timeout * 1000))
         s.connect(self.endpoint)
         self._sock = s
 
     def close(self) -> None:
+        if self._monitor is not None:
+            assert self._sock is not None
+            self._sock.disable_monitor()
+            self._monitor.close(linger=0)
+            self._monitor = None
         if self._sock is not None:
             self._sock.close(linger=0)
             self._sock = None
@@ -124,7 +186,8 @@ class Connection:
         deadline = time.monotonic() + limit
         while True:
             left = deadline - time.monotonic()
-            if left <= 0 or not self._sock.poll(max(1, int(left * 1000)), zmq.POLLIN):
+            ready = left > 0 and self._wait(max(1, int(left * 1000)))
+            if not ready:
                 # a late reply must not be read as the answer to a later request: start over
                 self.close()
                 self._connect()
@@ -150,6 +213,35 @@ class Connection:
             if body == "error":
                 raise errors.from_reply(msg.code, msg.field, msg.message)
             return body, msg
+
+    def _wait(self, timeout_ms: int) -> bool:
+        """Whether a reply is waiting within ``timeout_ms``; raises
+        :class:`errors.KeyRefused` as soon as the broker refuses this client's key."""
+        assert self._sock is not None
+        if self._monitor is None:
+            return bool(self._sock.poll(timeout_ms, zmq.POLLIN))
+        from zmq.utils.monitor import recv_monitor_message
+
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
+        deadline = time.monotonic() + timeout_ms / 1000
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            ready = dict(poller.poll(max(1, int(left * 1000))))
+            if self._sock in ready:
+                return True
+            if self._monitor in ready:
+                event = recv_monitor_message(self._monitor)
+                if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+                    detail = (f"ZAP status {event['value']}: its public key is not in the "
+                              "broker's allowed client keys")
+                else:
+                    detail = (f"CURVE handshake failed (protocol error {event['value']:#x}): check "
+                              "the broker's public key file and that the broker uses CURVE")
+                raise errors.KeyRefused(self.endpoint, self._fingerprint, detail)
 
     def request(self, field: str, msg: Message, expect: str | Iterable[str],
                 timeout: float | None = None,

@@ -13,7 +13,7 @@ import pytest
 import paddock
 from paddock import errors
 from paddock.server import find_paddock, free_port
-from paddock.transport import Connection
+from paddock.transport import Connection, _read_keys, fingerprint
 
 
 def test_client_with_keys_gets_in_and_without_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -57,6 +57,17 @@ def test_client_with_keys_gets_in_and_without_is_refused(monkeypatch: pytest.Mon
                 r = client.rollouts("pure-pursuit", paddock.driver_defaults("pure-pursuit")[0],
                                     seeds=[1, 2], map="lakeside")
                 assert r.progress.shape == (1, 2)
+            # a key the broker does not know: refused at once, with its fingerprint
+            stranger = os.path.join(d, "stranger")
+            subprocess.run([binary, "keys", "generate", "--role", "client", "--out", stranger],
+                           check=True, stdout=subprocess.DEVNULL)
+            stranger_key = os.path.join(stranger, "client.key")
+            monkeypatch.setenv("PADDOCK_KEY_FILE", stranger_key)
+            with Connection(front, timeout=30.0) as c:
+                with pytest.raises(errors.KeyRefused) as refused:
+                    c.status()
+            assert fingerprint(_read_keys(stranger_key)["public"]) in str(refused.value)
+            assert "refused this client's key" in str(refused.value)
             # a key file that is not one
             bad = os.path.join(d, "bad.key")
             with open(bad, "w", encoding="utf-8") as f:
@@ -68,3 +79,33 @@ def test_client_with_keys_gets_in_and_without_is_refused(monkeypatch: pytest.Mon
             for p in (worker, broker):
                 p.kill()
                 p.wait()
+
+
+def _write(path: str, text: str) -> str:
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text)
+    return path
+
+
+def test_bad_key_files_are_refused_naming_file_and_field() -> None:
+    import zmq
+
+    public, secret = (k.decode() for k in zmq.curve_keypair())
+    other_public, other_secret = (k.decode() for k in zmq.curve_keypair())
+    with tempfile.TemporaryDirectory() as d:
+        bad_z85 = _write(os.path.join(d, "z85.key"),
+                         f'public = "{public}"\nsecret = "~~~~{secret[4:]}"\n')
+        with pytest.raises(errors.PaddockError, match=r"z85\.key.*`secret`.*Z85 alphabet") as e:
+            _read_keys(bad_z85)
+        assert secret[4:] not in str(e.value)
+        short = _write(os.path.join(d, "short.key"), f'public = "{public[:39]}"\n')
+        with pytest.raises(errors.PaddockError, match=r"short\.key.*`public`.*39 characters"):
+            _read_keys(short)
+        spliced = _write(os.path.join(d, "spliced.key"),
+                         f'public = "{public}"\nsecret = "{other_secret}"\n')
+        with pytest.raises(errors.PaddockError, match="different key pairs") as e:
+            _read_keys(spliced)
+        assert other_secret not in str(e.value)
+        good = _write(os.path.join(d, "good.key"),
+                      f'public = "{other_public}"\nsecret = "{other_secret}"\n')
+        assert _read_keys(good)["public"] == other_public.encode()

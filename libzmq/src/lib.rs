@@ -13,161 +13,24 @@
 //!   bounded set), and a refused peer never gets past the handshake, so it costs the
 //!   broker no memory beyond the handshake itself.
 
+mod keys;
+mod monitor;
+
+pub use monitor::{HandshakeFailure, HandshakeMonitor};
+
+pub use keys::{
+    KEY_Z85_LEN, KeyError, KeyPair, allowed_keys, check_key, fingerprint, public_file,
+    public_of_secret, read_public, write_key_file, z85_decode,
+};
+
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// Whether the linked libzmq supports CURVE (always true for this crate's build).
 pub fn has_curve() -> bool {
     zmq::has("curve") == Some(true)
-}
-
-/// A CURVE key pair, both halves as 40-character Z85 text.
-#[derive(Clone, PartialEq, Eq)]
-pub struct KeyPair {
-    pub public: String,
-    pub secret: String,
-}
-
-impl std::fmt::Debug for KeyPair {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("KeyPair")
-            .field("public", &self.public)
-            .field("secret", &"<hidden>")
-            .finish()
-    }
-}
-
-/// Errors reading or using keys; each names the file or the key.
-#[derive(Debug, thiserror::Error)]
-pub enum KeyError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: {reason}")]
-    Format { path: PathBuf, reason: String },
-    #[error("zmq: {0}")]
-    Zmq(#[from] zmq::Error),
-}
-
-impl KeyPair {
-    /// A fresh random key pair.
-    pub fn generate() -> Result<Self, KeyError> {
-        let kp = zmq::CurveKeyPair::new()?;
-        Ok(Self {
-            public: zmq::z85_encode(&kp.public_key).map_err(|e| KeyError::Format {
-                path: PathBuf::new(),
-                reason: e.to_string(),
-            })?,
-            secret: zmq::z85_encode(&kp.secret_key).map_err(|e| KeyError::Format {
-                path: PathBuf::new(),
-                reason: e.to_string(),
-            })?,
-        })
-    }
-
-    /// The text of a secret key file.
-    pub fn to_secret_file(&self) -> String {
-        format!(
-            "# Paddock CURVE key pair: keep this file secret\npublic = \"{}\"\nsecret = \"{}\"\n",
-            self.public, self.secret
-        )
-    }
-
-    /// Reads a secret key file.
-    pub fn read(path: &Path) -> Result<Self, KeyError> {
-        let (public, secret) = parse_key_file(path)?;
-        let secret = secret.ok_or_else(|| KeyError::Format {
-            path: path.into(),
-            reason: "no `secret = \"...\"` line: this is not a secret key file".into(),
-        })?;
-        let public = public.ok_or_else(|| KeyError::Format {
-            path: path.into(),
-            reason: "no `public = \"...\"` line beside the secret key".into(),
-        })?;
-        Ok(Self { public, secret })
-    }
-}
-
-/// The text of a public key file.
-pub fn public_file(public: &str) -> String {
-    format!("# Paddock CURVE public key\npublic = \"{public}\"\n")
-}
-
-/// Reads a public key file (or the public half of a secret key file).
-pub fn read_public(path: &Path) -> Result<String, KeyError> {
-    let (public, _) = parse_key_file(path)?;
-    public.ok_or_else(|| KeyError::Format {
-        path: path.into(),
-        reason: "no `public = \"...\"` line".into(),
-    })
-}
-
-fn check_z85_key(text: &str) -> Result<(), String> {
-    if text.len() != 40 {
-        return Err(format!(
-            "key {text:?} has {} characters; a Z85 CURVE key has 40",
-            text.len()
-        ));
-    }
-    match zmq::z85_decode(text) {
-        Ok(bytes) if bytes.len() == 32 => Ok(()),
-        _ => Err(format!("key {text:?} is not valid Z85")),
-    }
-}
-
-fn parse_key_file(path: &Path) -> Result<(Option<String>, Option<String>), KeyError> {
-    let text = std::fs::read_to_string(path).map_err(|source| KeyError::Io {
-        path: path.into(),
-        source,
-    })?;
-    let mut public = None;
-    let mut secret = None;
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let (name, value) = match line.split_once('=') {
-            Some((n, v)) => (n.trim(), v.trim().trim_matches('"')),
-            None => ("public", line.trim_matches('"')),
-        };
-        check_z85_key(value).map_err(|reason| KeyError::Format {
-            path: path.into(),
-            reason: format!("line {}: {reason}", i + 1),
-        })?;
-        match name {
-            "public" | "public-key" => public = Some(value.to_string()),
-            "secret" | "secret-key" => secret = Some(value.to_string()),
-            other => {
-                return Err(KeyError::Format {
-                    path: path.into(),
-                    reason: format!("line {}: unknown entry {other:?}", i + 1),
-                });
-            }
-        }
-    }
-    Ok((public, secret))
-}
-
-/// The public keys in an allowed-keys directory (every readable key file in it).
-pub fn allowed_keys(dir: &Path) -> HashSet<String> {
-    let mut keys = HashSet::new();
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return keys;
-    };
-    for e in entries.flatten() {
-        let path = e.path();
-        if path.is_file()
-            && let Ok(k) = read_public(&path)
-        {
-            keys.insert(k);
-        }
-    }
-    keys
 }
 
 /// How one socket is secured.
@@ -214,7 +77,7 @@ impl Curve {
 }
 
 fn z85(text: &str) -> Result<Vec<u8>, zmq::Error> {
-    zmq::z85_decode(text).map_err(|_| zmq::Error::EINVAL)
+    check_key(text).map_err(|_| zmq::Error::EINVAL)
 }
 
 /// Counters of an [`Authenticator`].
@@ -322,7 +185,15 @@ fn serve(
             if refused_seen.len() < MAX_REMEMBERED_REFUSALS
                 && refused_seen.insert(format!("{domain}/{user}"))
             {
-                tracing::warn!(domain, address, key = user, reason = text, "peer refused");
+                let fingerprint = fingerprint(&user);
+                tracing::warn!(
+                    domain,
+                    address,
+                    key = user,
+                    fingerprint,
+                    reason = text,
+                    "peer refused"
+                );
             }
         }
         let reply: Vec<Vec<u8>> = vec![
@@ -430,6 +301,30 @@ mod tests {
             server_public: stranger.public.clone(),
         };
         assert!(!exchange(&ctx, &endpoint, &wrong_server));
+        // a refused client is told so by its handshake monitor, with its key's fingerprint
+        let s = ctx.socket(zmq::DEALER).unwrap();
+        s.set_linger(0).unwrap();
+        client(&stranger).apply(&s).unwrap();
+        let monitor = HandshakeMonitor::start(&ctx, &s, &stranger.public).unwrap();
+        s.connect(&endpoint).unwrap();
+        s.send("ping", 0).unwrap();
+        let mut items = [monitor.socket().as_poll_item(zmq::POLLIN)];
+        assert_eq!(
+            zmq::poll(&mut items, 5000).unwrap(),
+            1,
+            "no handshake event"
+        );
+        match monitor.failure() {
+            Some(HandshakeFailure::Refused {
+                fingerprint,
+                status,
+                ..
+            }) => {
+                assert_eq!(fingerprint, crate::fingerprint(&stranger.public));
+                assert_eq!(status, 400);
+            }
+            other => panic!("expected a refusal, got {other:?}"),
+        }
         // revoke: remove the key file; new connections are refused
         std::fs::remove_file(allowed.join("good.pub")).unwrap();
         assert!(!exchange(&ctx, &endpoint, &client(&good)));

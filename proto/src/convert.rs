@@ -56,13 +56,19 @@ pub fn with_prefix(mut e: Error, prefix: &str) -> Error {
 pub fn local_map(map: &str) -> Result<crate::MapBundle, Error> {
     let circuit = paddock_sim::track::Circuit::resolve(map, &[])
         .map_err(|e| error(ErrorCode::NotFound, "map", format!("map {map:?}: {e}")))?;
-    crate::read_map_dir(&circuit.dir, map).map_err(|e| {
+    let bundle = crate::read_map_dir(&circuit.dir, map).map_err(|e| {
         error(
             ErrorCode::Internal,
             "map",
             format!("reading map {map:?} from {}: {e}", circuit.dir.display()),
         )
-    })
+    })?;
+    // what the broker and workers will check: refuse here, before sending
+    crate::check_bundle(&bundle).map_err(|mut e| {
+        e.message = format!("map {map:?} in {}: {}", circuit.dir.display(), e.message);
+        e
+    })?;
+    Ok(bundle)
 }
 
 /// The bundles of the maps shipped inside the binary ([`paddock_sim::shipped`]), each

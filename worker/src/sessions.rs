@@ -351,7 +351,12 @@ impl Sessions {
         if let Some(dir) = self.maps.as_ref().and_then(|c| c.get(&hash)) {
             return Some(dir);
         }
-        if !self.local.contains_key(&m.name)
+        // a client's map name is looked up among the known map folders only, never
+        // opened as a path (it could name any file or directory of the host)
+        let bare =
+            !m.name.is_empty() && !m.name.contains(['/', '\\', '\0']) && !m.name.starts_with('.');
+        if bare
+            && !self.local.contains_key(&m.name)
             && let Ok(c) = Circuit::resolve(&m.name, &[])
             && let Ok(b) = paddock_proto::read_map_dir(&c.dir, &m.name)
         {

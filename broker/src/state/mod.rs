@@ -334,10 +334,22 @@ mod tests {
     use super::*;
 
     fn bundle() -> paddock_proto::MapBundle {
-        let files = vec![paddock_proto::MapFile {
-            name: "x_map.yaml".into(),
-            data: b"image: x.png\n".to_vec(),
-        }];
+        let png = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../maps/lakeside/lakeside_map.png"
+        );
+        // sorted by name, as the store reads them back; a bundle's image must be one of
+        // its files (check_bundle)
+        let files = vec![
+            paddock_proto::MapFile {
+                name: "x.png".into(),
+                data: std::fs::read(png).unwrap(),
+            },
+            paddock_proto::MapFile {
+                name: "x_map.yaml".into(),
+                data: b"image: x.png\n".to_vec(),
+            },
+        ];
         paddock_proto::MapBundle {
             hash: paddock_proto::bundle_hash(&files),
             name: "x".into(),
@@ -398,7 +410,7 @@ mod tests {
         assert!(s.map_dir(&b.hash).join("x_map.yaml").is_file());
         // a bundle whose files do not match its hash is refused
         let mut bad = b.clone();
-        bad.files[0].data.push(b'!');
+        bad.files[1].data.push(b'!');
         assert!(matches!(s.put_map(&bad), Err(StoreError::Bundle(_))));
         // hashes that could name other paths are never looked up
         assert!(!s.has_map("../../etc").unwrap());

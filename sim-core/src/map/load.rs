@@ -153,13 +153,8 @@ fn build(yaml: &Path, name: &str, spec: &MapSpec, rule: OccupancyRule) -> Result
         yaml: yaml.to_path_buf(),
         message,
     };
-    let img = image::ImageReader::open(&spec.image)
-        .map_err(|e| img_err(e.to_string()))?
-        .with_guessed_format()
-        .map_err(|e| img_err(e.to_string()))?
-        .decode()
-        .map_err(|e| img_err(e.to_string()))?;
-    let grey = img.into_luma8();
+    let bytes = std::fs::read(&spec.image).map_err(|e| img_err(e.to_string()))?;
+    let grey = decode_image(&bytes).map_err(img_err)?;
     let (w, h) = (grey.width() as usize, grey.height() as usize);
     if w == 0 || h == 0 {
         return Err(img_err(format!("empty image {w} x {h}")));
@@ -183,6 +178,86 @@ fn build(yaml: &Path, name: &str, spec: &MapSpec, rule: OccupancyRule) -> Result
         MapError::InvalidGrid { reason, .. } => img_err(reason),
         other => other,
     })
+}
+
+/// Widest or tallest map image accepted, in pixels.
+pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Most pixels a map image may have (64 Mi: at 5 cm per pixel, 400 m x 400 m of track).
+/// The grid and its distance field take 9 bytes per pixel, so this caps a map near 600 MB.
+pub const MAX_IMAGE_PIXELS: u64 = 64 << 20;
+
+/// Width and height of a PNG or PGM image from its header alone (nothing is decoded or
+/// allocated for the pixels), refused above [`MAX_IMAGE_SIDE`] or [`MAX_IMAGE_PIXELS`].
+pub fn image_dimensions(bytes: &[u8]) -> Result<(u32, u32), String> {
+    let (w, h) = reader(bytes)?
+        .into_dimensions()
+        .map_err(|e| e.to_string())?;
+    check_dimensions(w, h)?;
+    Ok((w, h))
+}
+
+fn check_dimensions(w: u32, h: u32) -> Result<(), String> {
+    let pixels = u64::from(w) * u64::from(h);
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE || pixels > MAX_IMAGE_PIXELS {
+        return Err(format!(
+            "image of {w} x {h} pixels exceeds the limit of {MAX_IMAGE_SIDE} pixels a side \
+             and {MAX_IMAGE_PIXELS} pixels in all"
+        ));
+    }
+    if w == 0 || h == 0 {
+        return Err(format!("empty image {w} x {h}"));
+    }
+    Ok(())
+}
+
+fn reader(bytes: &[u8]) -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, String> {
+    image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| e.to_string())
+}
+
+/// Decodes a map image to grey levels, checking its size from the header first and
+/// bounding the decoder's allocations, so a small file that claims a huge image is
+/// refused before any pixel memory is taken.
+pub fn decode_image(bytes: &[u8]) -> Result<image::GrayImage, String> {
+    let (w, h) = image_dimensions(bytes)?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE);
+    // the widest pixel format map_server images use (16-bit RGBA) for the claimed size
+    limits.max_alloc = Some(u64::from(w) * u64::from(h) * 8 + (1 << 20));
+    let mut r = reader(bytes)?;
+    r.limits(limits);
+    Ok(r.decode().map_err(|e| e.to_string())?.into_luma8())
+}
+
+/// The `image:` entry of a map YAML that travels inside a map bundle: it must name a
+/// file of the bundle itself, so only a bare file name is accepted (no absolute path, no
+/// `..`, no directory). Returns None when the text is not a map YAML (no `image` entry);
+/// the error says what is wrong with the value without touching the file system.
+pub fn bundle_image_name(yaml_text: &str) -> Result<Option<String>, String> {
+    let Ok(doc) = serde_norway::from_str::<Value>(yaml_text) else {
+        return Ok(None);
+    };
+    let Some(v) = doc.get("image") else {
+        return Ok(None);
+    };
+    let Some(name) = v.as_str() else {
+        return Err(format!("{} is not a file name", show(v)));
+    };
+    let p = Path::new(name);
+    let bare = !name.is_empty()
+        && !p.is_absolute()
+        && !name.contains(['/', '\\', '\0'])
+        && name != "."
+        && name != "..";
+    if !bare {
+        return Err(format!(
+            "{name:?} is not a bare file name: a map bundle's image must be one of its own files \
+             (no absolute path, no directory, no `..`)"
+        ));
+    }
+    Ok(Some(name.to_string()))
 }
 
 #[inline]

@@ -21,7 +21,10 @@ use std::sync::OnceLock;
 
 use crate::geometry::Pose;
 
-pub use load::{MapError, OccupancyRule};
+pub use load::{
+    MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, MapError, OccupancyRule, bundle_image_name, decode_image,
+    image_dimensions,
+};
 
 /// The largest quadrant clearance stored per cell (saturating; a capped value is a
 /// lower bound, so everything that reads it stays exact or conservative).
