@@ -74,7 +74,7 @@ def drive_and_collect(paddock, domain_id, *flags, broadcast_tf):
     odom_pub = car.publisher("/odom", Odometry, default_qos(10))
     drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
     proc = paddock(
-        "drive", "--policy", "follow-the-gap", "--max-speed", "2",
+        "drive", "--driver", "follow-the-gap", "--max-speed", "2",
         "--domain-id", str(domain_id), *flags,
     )
     moving = []

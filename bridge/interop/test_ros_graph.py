@@ -33,7 +33,7 @@ def test_the_drive_node_is_in_the_graph_record_in_the_iron_and_later_layout(padd
             Policy.DataRepresentation(use_cdrv0_representation=True),
         ),
     )
-    proc = paddock("drive", "--policy", "follow-the-gap", "--domain-id", str(domain_id))
+    proc = paddock("drive", "--driver", "follow-the-gap", "--domain-id", str(domain_id))
     found = None
     deadline = time.monotonic() + DISCOVERY_S
     while found is None and time.monotonic() < deadline and proc.alive():

@@ -39,7 +39,7 @@ def test_every_signal_stops_the_car(paddock, domain_id, sig):
     odom_pub = car.publisher("/odom", Odometry, default_qos(10))
     drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
     proc = paddock(
-        "drive", "--policy", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
+        "drive", "--driver", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
     )
     x, speed, period = 0.0, 1.5, 0.025
 
@@ -84,7 +84,7 @@ def test_a_sensor_resending_old_data_stops_the_car(paddock, domain_id):
     odom_pub = car.publisher("/odom", Odometry, default_qos(10))
     drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
     proc = paddock(
-        "drive", "--policy", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
+        "drive", "--driver", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
     )
     x, period = 0.0, 0.025
 
