@@ -296,7 +296,7 @@ fn one_name_for_the_thing_that_drives() {
     ] {
         let (_, help, _) = paddock(cmd);
         assert!(help.contains("--driver"), "{cmd:?}: {help}");
-        assert!(!help.contains("--driver"), "{cmd:?}: {help}");
+        assert!(!help.contains("--policy"), "{cmd:?}: {help}");
     }
     // the broker's worker endpoint is --worker-bind; --workers is serve's count only
     let (_, help, _) = paddock(&["broker", "--help"]);
