@@ -220,8 +220,9 @@ struct SilArgs {
     /// Parameter overrides for the opponent driver, `name=value,...`.
     #[arg(long)]
     opponent_params: Option<String>,
-    /// Vehicle YAML of both cars (as `paddock sysid` writes it: the fitted car; default:
-    /// the f1tenth_gym vehicle).
+    /// Vehicle YAML of both cars (as `paddock sysid` writes it: the fitted car, and
+    /// `laser_mount` with x, y, yaw, flipped, which then places the simulated laser
+    /// instead of --laser-x; default: the f1tenth_gym vehicle).
     #[arg(long, value_name = "FILE")]
     vehicle: Option<PathBuf>,
     /// Simulated seconds per wall-clock second (1 = real time).
@@ -253,10 +254,6 @@ struct SilArgs {
     /// f1tenth_system mounts the Hokuyo. Published on /tf_static.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = args::number(-1.0, 1.0))]
     laser_x: f64,
-    /// Vehicle YAML (physics, and `laser_mount` with x, y, yaw, flipped, which then
-    /// places the simulated laser instead of --laser-x); default: the simulator's car.
-    #[arg(long)]
-    vehicle: Option<PathBuf>,
     /// What a collision does: stop (put back and halted), terminate, ignore.
     #[arg(long, default_value = "stop")]
     collision: String,
