@@ -89,6 +89,7 @@ pub fn to_json(a: &Analysis, rec: &Recording) -> Value {
             }).collect::<Vec<_>>(),
             "channels_missing": missing_names(rec),
         },
+        "ambiguities": a.ambiguities,
         "not_identifiable": a.not_identifiable.iter().map(|(k, why)| json!({"effect": k.name(), "why": why})).collect::<Vec<_>>(),
         "above_noise_floor": above_noise(a),
         "analysis_seconds": (a.seconds * 100.0).round() / 100.0,
@@ -243,6 +244,9 @@ pub fn to_markdown_with(a: &Analysis, rec: &Recording, vesc: Option<&Value>) -> 
             );
         }
         let _ = writeln!(s);
+    }
+    for amb in &a.ambiguities {
+        let _ = writeln!(s, "Ambiguous: {amb}.\n");
     }
     let above = above_noise(a);
     if !above.is_empty() {
