@@ -332,12 +332,29 @@ pub fn analyze(
     let fitted_residuals = replay.residuals_at(&fitted, measurement_delay(&chosen));
     let rmse_fitted_in_sample = fitted_residuals.rmse(|_| true);
     let located_fitted = locate(rec, &replay, &fitted_residuals);
-    for c in &chosen {
-        if let Some(r) = results.get_mut(&c.kind) {
-            r.interval = Some(interval(c, &fold_fits));
+    let final_cost = ctx.cost(&chosen, &|_| true);
+    let n_measured: usize = replay.window_counts().iter().sum();
+    // the cost's own noise: a sum of n squared normalised residuals wanders by about
+    // sqrt(2 n), inflated by how far above the noise the fit stays
+    let allowed =
+        2.0 * (2.0 * n_measured as f64).sqrt() * (final_cost / n_measured.max(1) as f64).max(1.0);
+    let intervals: Vec<(EffectKind, Vec<[f64; 2]>)> = (0..chosen.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut iv = interval(&chosen[i], &fold_fits);
+            for (p, slot) in iv.iter_mut().enumerate() {
+                if let Some([lo, hi]) = profile(&ctx, &chosen, i, p, final_cost + allowed) {
+                    *slot = [slot[0].min(lo), slot[1].max(hi)];
+                }
+            }
+            (chosen[i].kind, iv)
+        })
+        .collect();
+    for (k, iv) in intervals {
+        if let Some(r) = results.get_mut(&k) {
+            r.interval = Some(iv);
         }
     }
-    let final_cost = ctx.cost(&chosen, &|_| true);
     let bounds: Vec<(EffectKind, Option<[f64; 2]>)> = results
         .values()
         .filter(|r| !r.selected)
@@ -476,15 +493,22 @@ fn could_be(ctx: &FitContext, chosen: &[Fitted], kind: EffectKind, limit: f64) -
 }
 
 /// Refit the kept effects jointly, none held at its first value. The steering delay acts
-/// in whole steps, a step function the optimiser cannot follow: it is profiled instead
+/// in whole steps, a step function the optimiser cannot follow: with an effect it trades
+/// off against (a steering lag, a pose latency) it is profiled instead
 /// (every 2 steps over its range, then the neighbours of the best), the others refitted
 /// at each value; it stays held at the best value for the held-out refits.
 fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, SysidError> {
     let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum();
-    let Some(di) = chosen
+    let trades_off = chosen.iter().any(|c| {
+        matches!(
+            c.kind,
+            EffectKind::SteeringLag | EffectKind::MeasurementDelay
+        )
+    });
+    let di = chosen
         .iter()
-        .position(|c| c.kind == EffectKind::SteeringDelay)
-    else {
+        .position(|c| c.kind == EffectKind::SteeringDelay);
+    let Some(di) = di.filter(|_| trades_off) else {
         return Ok(ctx.fit(&[], chosen, &|_| true, evals)?.0);
     };
     let at = |n: usize| -> Result<(Vec<Fitted>, f64), SysidError> {
@@ -607,4 +631,53 @@ fn ambiguities(rounds: &[Vec<Evidence>], chosen: &[Fitted]) -> Vec<String> {
         out.push(line);
     }
     out
+}
+
+/// The range of parameter `p` of kept effect `i` over which the final model's cost stays
+/// below `limit`, the others held (steps doubling outward, the crossing interpolated).
+/// `None` for a friction patch's box.
+fn profile(
+    ctx: &FitContext,
+    chosen: &[Fitted],
+    i: usize,
+    p: usize,
+    limit: f64,
+) -> Option<[f64; 2]> {
+    let kind = chosen[i].kind;
+    if kind == EffectKind::FrictionPatch && p > 0 {
+        return None;
+    }
+    let (lo, hi) = kind.bounds()[p];
+    let v0 = chosen[i].values[p];
+    let first = if kind == EffectKind::SteeringDelay {
+        crate::replay::DT
+    } else {
+        (hi - lo) / 400.0
+    };
+    let cost_at = |v: f64| {
+        let mut fx = chosen.to_vec();
+        fx[i].values[p] = v;
+        ctx.cost(&fx, &|_| true)
+    };
+    let side = |dir: f64| -> f64 {
+        let mut last = v0;
+        let mut h = first;
+        for _ in 0..12 {
+            let v = (v0 + dir * h).clamp(lo, hi);
+            if cost_at(v) > limit {
+                return if kind == EffectKind::SteeringDelay {
+                    last
+                } else {
+                    0.5 * (last + v)
+                };
+            }
+            last = v;
+            if v == lo || v == hi {
+                break;
+            }
+            h *= 2.0;
+        }
+        last
+    };
+    Some([side(-1.0), side(1.0)])
 }
