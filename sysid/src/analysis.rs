@@ -41,7 +41,12 @@ impl Default for AnalysisOptions {
             folds: 3,
             margin_per_param: 0.03,
             max_effects: 4,
-            candidates: ALL.to_vec(),
+            // measurement_delay only when asked for: on pose-only test days a control
+            // can show a spurious 10-15 ms latency (see docs/sysid.md)
+            candidates: ALL
+                .into_iter()
+                .filter(|k| *k != EffectKind::MeasurementDelay)
+                .collect(),
             seed: 1,
             effort: 1.0,
         }
