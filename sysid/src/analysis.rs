@@ -41,7 +41,12 @@ impl Default for AnalysisOptions {
             folds: 3,
             margin_per_param: 0.03,
             max_effects: 4,
-            candidates: ALL.to_vec(),
+            // measurement_delay only when asked for: on pose-only test days a control
+            // can show a spurious 10-15 ms latency (see docs/sysid.md)
+            candidates: ALL
+                .into_iter()
+                .filter(|k| *k != EffectKind::MeasurementDelay)
+                .collect(),
             seed: 1,
             effort: 1.0,
         }
@@ -122,6 +127,8 @@ pub struct Analysis {
     pub window_s: f64,
     /// Whether whole runs were held out (several runs) or time blocks (one).
     pub heldout_runs: bool,
+    /// Effects the data cannot tell apart, in words.
+    pub ambiguities: Vec<String>,
     pub excitation: crate::explain::Excitation,
     /// Effects these data cannot identify, with what to drive.
     pub not_identifiable: Vec<(EffectKind, String)>,
@@ -212,6 +219,7 @@ pub fn analyze(
     };
 
     let mut chosen: Vec<Fitted> = Vec::new();
+    let mut round_log: Vec<Vec<Evidence>> = Vec::new();
     let mut results: BTreeMap<EffectKind, CandidateResult> = BTreeMap::new();
     for round in 1..=rounds {
         let base_heldout = ctx.fold_costs(&chosen);
@@ -228,8 +236,10 @@ pub fn analyze(
             .map(|k| ctx.evidence(&chosen, &base_heldout, *k, opts.margin_per_param))
             .collect();
         let mut best: Option<Evidence> = None;
+        let mut round_evidence: Vec<Evidence> = Vec::new();
         for e in evid {
             let e = e?;
+            round_evidence.push(e.clone());
             info!(
                 round,
                 effect = e.kind.name(),
@@ -258,12 +268,13 @@ pub fn analyze(
             &mut done,
             format!("round {round}: tested {} effects", remaining.len()),
         );
+        round_log.push(round_evidence);
         let Some(best) = best else { break };
         info!(round, effect = best.kind.name(), "kept");
         let mut kept = best.fitted.clone();
         if kept.kind == EffectKind::SteeringDelay {
-            // whole steps: found by exhaustive search, held in the joint refits, which
-            // a step function would only confuse
+            // whole steps: found by exhaustive search, and profiled (not optimised) in
+            // the joint refits, which a step function would only confuse
             kept.pinned = vec![0];
         }
         chosen.push(kept);
@@ -271,9 +282,7 @@ pub fn analyze(
             r.selected = true;
         }
         if chosen.len() > 1 {
-            let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum();
-            let (refit, _) = ctx.fit(&[], &chosen, &|_| true, evals)?;
-            chosen = refit;
+            chosen = joint_refit(&ctx, &chosen)?;
         }
         tick(
             &mut done,
@@ -328,12 +337,29 @@ pub fn analyze(
     let fitted_residuals = replay.residuals_at(&fitted, measurement_delay(&chosen));
     let rmse_fitted_in_sample = fitted_residuals.rmse(|_| true);
     let located_fitted = locate(rec, &replay, &fitted_residuals);
-    for c in &chosen {
-        if let Some(r) = results.get_mut(&c.kind) {
-            r.interval = Some(interval(c, &fold_fits));
+    let final_cost = ctx.cost(&chosen, &|_| true);
+    let n_measured: usize = replay.window_counts().iter().sum();
+    // the cost's own noise: a sum of n squared normalised residuals wanders by about
+    // sqrt(2 n), inflated by how far above the noise the fit stays
+    let allowed =
+        2.0 * (2.0 * n_measured as f64).sqrt() * (final_cost / n_measured.max(1) as f64).max(1.0);
+    let intervals: Vec<(EffectKind, Vec<[f64; 2]>)> = (0..chosen.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut iv = interval(&chosen[i], &fold_fits);
+            for (p, slot) in iv.iter_mut().enumerate() {
+                if let Some([lo, hi]) = profile(&ctx, &chosen, i, p, final_cost + allowed) {
+                    *slot = [slot[0].min(lo), slot[1].max(hi)];
+                }
+            }
+            (chosen[i].kind, iv)
+        })
+        .collect();
+    for (k, iv) in intervals {
+        if let Some(r) = results.get_mut(&k) {
+            r.interval = Some(iv);
         }
     }
-    let final_cost = ctx.cost(&chosen, &|_| true);
     let bounds: Vec<(EffectKind, Option<[f64; 2]>)> = results
         .values()
         .filter(|r| !r.selected)
@@ -352,6 +378,7 @@ pub fn analyze(
             r.could_be = b;
         }
     }
+    let ambiguities = ambiguities(&round_log, &chosen);
     let excitation = crate::explain::excitation(rec);
     let not_identifiable = crate::explain::not_identifiable(&excitation, nominal.mu);
     let mut candidates: Vec<CandidateResult> = results.into_values().collect();
@@ -372,6 +399,7 @@ pub fn analyze(
         folds,
         window_s: replay.window_s,
         heldout_runs: n_runs >= 2,
+        ambiguities,
         excitation,
         not_identifiable,
         seconds: start.elapsed().as_secs_f64(),
@@ -467,4 +495,194 @@ fn could_be(ctx: &FitContext, chosen: &[Fitted], kind: EffectKind, limit: f64) -
         end
     };
     Some([side(lo.min(off)), side(hi.max(off))])
+}
+
+/// Refit the kept effects jointly, none held at its first value. The steering delay acts
+/// in whole steps, a step function the optimiser cannot follow: with an effect it trades
+/// off against (a steering lag, a pose latency) it is profiled instead
+/// (every 2 steps over its range, then the neighbours of the best), the others refitted
+/// at each value; it stays held at the best value for the held-out refits.
+fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, SysidError> {
+    let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum();
+    let trades_off = chosen.iter().any(|c| {
+        matches!(
+            c.kind,
+            EffectKind::SteeringLag | EffectKind::MeasurementDelay
+        )
+    });
+    let di = chosen
+        .iter()
+        .position(|c| c.kind == EffectKind::SteeringDelay);
+    let Some(di) = di.filter(|_| trades_off) else {
+        return Ok(ctx.fit(&[], chosen, &|_| true, evals)?.0);
+    };
+    let at = |n: usize| -> Result<(Vec<Fitted>, f64), SysidError> {
+        let mut fx = chosen.to_vec();
+        fx[di].values[0] = n as f64 * crate::replay::DT;
+        fx[di].pinned = vec![0];
+        ctx.fit(&[], &fx, &|_| true, evals / 2)
+    };
+    let max_n = (EffectKind::SteeringDelay.bounds()[0].1 / crate::replay::DT).round() as usize;
+    let coarse: Vec<usize> = (0..=max_n).step_by(2).collect();
+    let mut tried: Vec<(usize, Vec<Fitted>, f64)> = Vec::new();
+    let results: Vec<Result<(Vec<Fitted>, f64), SysidError>> =
+        coarse.par_iter().map(|&n| at(n)).collect();
+    for (n, r) in coarse.iter().zip(results) {
+        let (f, c) = r?;
+        tried.push((*n, f, c));
+    }
+    let best_n = tried
+        .iter()
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map_or(0, |t| t.0);
+    let fine: Vec<usize> = [best_n.wrapping_sub(1), best_n + 1]
+        .into_iter()
+        .filter(|n| *n <= max_n)
+        .collect();
+    let results: Vec<Result<(Vec<Fitted>, f64), SysidError>> =
+        fine.par_iter().map(|&n| at(n)).collect();
+    for (n, r) in fine.iter().zip(results) {
+        let (f, c) = r?;
+        tried.push((*n, f, c));
+    }
+    let (_, best, _) = tried
+        .into_iter()
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .expect("at least one delay tried");
+    Ok(best)
+}
+
+/// Groups of effects that can stand in for each other.
+const CONFUSABLE: [&[EffectKind]; 4] = [
+    &[
+        EffectKind::SteeringDelay,
+        EffectKind::SteeringLag,
+        EffectKind::MeasurementDelay,
+    ],
+    &[
+        EffectKind::Friction,
+        EffectKind::TireSaturation,
+        EffectKind::SteeringGain,
+    ],
+    &[
+        EffectKind::DriveLag,
+        EffectKind::SpeedGain,
+        EffectKind::Drag,
+    ],
+    &[EffectKind::SteeringOffset, EffectKind::SteeringBacklash],
+];
+
+/// What would separate each group.
+const SEPARATING: [&str; 4] = [
+    "steering steps at two speeds with speed steps in between (a pose latency shifts the speed response too; a lag rounds a step, a delay shifts it)",
+    "arcs at rising speed up to the grip limit (a gain acts at every speed, friction and saturation only near the limit)",
+    "speed steps up and down at low and at high speed (a lag shapes the step, a gain its level, drag grows with speed)",
+    "steering steps in both directions (an offset shifts both the same way, play opposes the reversal)",
+];
+
+/// In the round an effect was kept, a confusable candidate that explained the data
+/// nearly as well (within 20 % of its held-out gain, and significant itself) is reported
+/// with it, with the manoeuvre that would separate them; delay-like effects also get
+/// their effective dead time.
+fn ambiguities(rounds: &[Vec<Evidence>], chosen: &[Fitted]) -> Vec<String> {
+    let mut out = Vec::new();
+    for round in rounds {
+        let Some(best) = round
+            .iter()
+            .filter(|e| e.significant)
+            .max_by(|a, b| a.gain.total_cmp(&b.gain))
+        else {
+            continue;
+        };
+        let Some(g) = CONFUSABLE.iter().position(|g| g.contains(&best.kind)) else {
+            continue;
+        };
+        let rivals: Vec<&Evidence> = round
+            .iter()
+            .filter(|e| {
+                e.kind != best.kind
+                    && CONFUSABLE[g].contains(&e.kind)
+                    && e.significant
+                    && e.gain >= 0.8 * best.gain
+            })
+            .collect();
+        if rivals.is_empty() {
+            continue;
+        }
+        let names: Vec<&str> = rivals.iter().map(|e| e.kind.name()).collect();
+        let mut line = format!(
+            "{} and {} are not separable here (held-out gain {:.0} % vs {}); kept {}",
+            best.kind.name(),
+            names.join(", "),
+            100.0 * best.gain,
+            rivals
+                .iter()
+                .map(|e| format!("{:.0} %", 100.0 * e.gain))
+                .collect::<Vec<_>>()
+                .join(", "),
+            best.kind.name()
+        );
+        if g == 0 {
+            let dead: f64 = chosen
+                .iter()
+                .filter(|c| CONFUSABLE[0].contains(&c.kind))
+                .map(|c| c.values[0])
+                .sum();
+            line.push_str(&format!(
+                "; together the delay-like effects act as an effective delay of {dead:.3} s"
+            ));
+        }
+        line.push_str(&format!("; to separate them drive {}", SEPARATING[g]));
+        out.push(line);
+    }
+    out
+}
+
+/// The range of parameter `p` of kept effect `i` over which the final model's cost stays
+/// below `limit`, the others held (steps doubling outward, the crossing interpolated).
+/// `None` for a friction patch's box.
+fn profile(
+    ctx: &FitContext,
+    chosen: &[Fitted],
+    i: usize,
+    p: usize,
+    limit: f64,
+) -> Option<[f64; 2]> {
+    let kind = chosen[i].kind;
+    if kind == EffectKind::FrictionPatch && p > 0 {
+        return None;
+    }
+    let (lo, hi) = kind.bounds()[p];
+    let v0 = chosen[i].values[p];
+    let first = if kind == EffectKind::SteeringDelay {
+        crate::replay::DT
+    } else {
+        (hi - lo) / 400.0
+    };
+    let cost_at = |v: f64| {
+        let mut fx = chosen.to_vec();
+        fx[i].values[p] = v;
+        ctx.cost(&fx, &|_| true)
+    };
+    let side = |dir: f64| -> f64 {
+        let mut last = v0;
+        let mut h = first;
+        for _ in 0..12 {
+            let v = (v0 + dir * h).clamp(lo, hi);
+            if cost_at(v) > limit {
+                return if kind == EffectKind::SteeringDelay {
+                    last
+                } else {
+                    0.5 * (last + v)
+                };
+            }
+            last = v;
+            if v == lo || v == hi {
+                break;
+            }
+            h *= 2.0;
+        }
+        last
+    };
+    Some([side(-1.0), side(1.0)])
 }

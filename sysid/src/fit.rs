@@ -325,14 +325,16 @@ impl FitContext<'_> {
         // a block the effect cannot touch (a friction patch the car never reached in it)
         // scores the same with and without: it neither supports nor refutes
         // a block is worse only beyond the noise of its cost: a sum of n squared
-        // noise-normalised residuals wanders by about sqrt(2 n) with noise alone
+        // noise-normalised residuals wanders by about sqrt(2 n) with noise alone, and by
+        // proportionally more where the base model leaves more unexplained (cost / n > 1)
         let counts = self.fold_counts();
         let folds_worse = with
             .iter()
             .zip(base_heldout)
             .zip(&counts)
             .filter(|((w, b), n)| {
-                let noise = WORSE_NOISE_SIGMAS * (2.0 * **n as f64).sqrt();
+                let n = (**n).max(1) as f64;
+                let noise = WORSE_NOISE_SIGMAS * (2.0 * n).sqrt() * (**b / n).max(1.0);
                 **w > **b * (1.0 + WORSE_TOLERANCE) + noise
             })
             .count();

@@ -89,6 +89,7 @@ pub fn to_json(a: &Analysis, rec: &Recording) -> Value {
             }).collect::<Vec<_>>(),
             "channels_missing": missing_names(rec),
         },
+        "ambiguities": a.ambiguities,
         "not_identifiable": a.not_identifiable.iter().map(|(k, why)| json!({"effect": k.name(), "why": why})).collect::<Vec<_>>(),
         "above_noise_floor": above_noise(a),
         "analysis_seconds": (a.seconds * 100.0).round() / 100.0,
@@ -141,7 +142,7 @@ fn above_noise(a: &Analysis) -> Vec<&'static str> {
 
 /// The kept effect that explains a mismatch location: the first kept effect of the kinds
 /// that act there, when the fitted model's residual there fell by 30 % or more.
-fn explained_by(a: &Analysis, g: &Group) -> Option<&'static str> {
+fn explained_by(a: &Analysis, g: &Group) -> Option<String> {
     let fitted = a
         .located_fitted
         .time
@@ -176,8 +177,13 @@ fn explained_by(a: &Analysis, g: &Group) -> Option<&'static str> {
     acting
         .iter()
         .find(|k| kept.contains(k))
-        .or(kept.first())
-        .map(|k| k.name())
+        .map(|k| k.name().to_string())
+        .or_else(|| {
+            (!kept.is_empty()).then(|| {
+                let names: Vec<&str> = kept.iter().map(|k| k.name()).collect();
+                format!("the fitted model as a whole ({})", names.join(" + "))
+            })
+        })
 }
 
 fn fmt_range(kind: EffectKind, iv: &[[f64; 2]]) -> String {
@@ -243,6 +249,9 @@ pub fn to_markdown_with(a: &Analysis, rec: &Recording, vesc: Option<&Value>) -> 
             );
         }
         let _ = writeln!(s);
+    }
+    for amb in &a.ambiguities {
+        let _ = writeln!(s, "Ambiguous: {amb}.\n");
     }
     let above = above_noise(a);
     if !above.is_empty() {
