@@ -37,6 +37,7 @@ pub mod locate;
 pub mod recording;
 pub mod replay;
 pub mod report;
+pub mod uncertainty;
 
 pub use analysis::{Analysis, AnalysisOptions, Stage, analyze};
 pub use effects::EffectKind;
