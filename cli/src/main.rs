@@ -6,6 +6,7 @@ mod cluster;
 mod demo;
 mod keys;
 mod maps_generate;
+mod onnx_cmd;
 mod perf;
 mod perf_cluster;
 mod plots;
@@ -99,6 +100,9 @@ enum Command {
     },
     /// Health check of a broker or worker container: its health file is fresh.
     Health(keys::HealthArgs),
+    /// Check an ONNX policy against the observation contract; print its raw actions on
+    /// seeded sample inputs as JSON.
+    OnnxCheck(onnx_cmd::OnnxCheckArgs),
 }
 
 #[derive(Subcommand)]
@@ -151,6 +155,7 @@ fn main() {
         Command::PerfCluster(args) => perf_cluster::run(&args),
         Command::Keys { command } => keys::run(&command),
         Command::Health(args) => keys::health(&args),
+        Command::OnnxCheck(args) => onnx_cmd::run(&args),
         Command::Maps { command } => match command {
             MapsCommand::List { dirs, json } => maps_list(&dirs, json),
             MapsCommand::Generate(args) => maps_generate::run(&args),

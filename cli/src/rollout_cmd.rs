@@ -128,9 +128,21 @@ pub struct RolloutArgs {
     video_opts: VideoOptions,
 }
 
+/// A driver name or a `.onnx` model path given on the command line, as the driver name a
+/// scenario carries: a model is checked and registered with this process
+/// (`onnx:<sha256>`). Models do not travel to workers yet, so they run locally only.
+fn resolve_driver(name: &str, endpoint: Option<&str>) -> Result<String> {
+    let spec = paddock_policy::DriverSpec::parse(name)?;
+    if endpoint.is_some() && matches!(spec, paddock_policy::DriverSpec::Onnx(_)) {
+        bail!("--driver {name}: ONNX models run locally only for now (no --endpoint)");
+    }
+    Ok(spec.register()?)
+}
+
 pub fn rollout(args: &RolloutArgs) -> Result<()> {
-    let params = parse_params(&args.driver, args.params.as_deref())?;
-    let mut scenario = Scenario::single(&args.driver)?;
+    let driver = resolve_driver(&args.driver, args.endpoint.as_deref())?;
+    let params = parse_params(&driver, args.params.as_deref())?;
+    let mut scenario = Scenario::single(&driver)?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     scenario.agents[0].params = params.clone();
     scenario.agents[0].vehicle = args::vehicle(args.vehicle.as_deref())?;
@@ -178,7 +190,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         .iter()
         .filter(|e| e.agents[0].termination == paddock_rollout::Termination::Finished)
         .count();
-    let info = driver_info(&args.driver)?;
+    let info = driver_info(&driver)?;
     if args.json {
         let named: serde_json::Map<String, serde_json::Value> = info
             .params

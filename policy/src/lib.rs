@@ -7,14 +7,20 @@
 //! Every driver has a name, documented parameters with defaults and bounds (a
 //! [`ParamSpec`] list: the vector CMA-ES tunes), and declares the sensors it needs, so a
 //! rollout whose drivers do not read the LIDAR skips the scan.
+//!
+//! Besides the built-in drivers, a trained network exported to ONNX drives through
+//! [`onnx::OnnxDriver`]; a [`DriverSpec`] names either kind (docs/onnx.md has the
+//! observation contract).
 
 pub mod follow_gap;
 pub mod lattice;
 pub mod mlp;
+pub mod onnx;
 pub mod perception;
 pub mod pure_pursuit;
 pub mod refpath;
 pub mod rrt_star;
+pub mod spec;
 pub mod tracker;
 
 use std::sync::Arc;
@@ -29,6 +35,9 @@ pub use lattice::{Lattice, LatticeParams};
 pub use mlp::{Mlp, MlpConfig, MlpDriver};
 pub use pure_pursuit::{PurePursuit, PurePursuitParams};
 pub use rrt_star::{RrtStar, RrtStarParams};
+pub use spec::{DriverSpec, OnnxModel, is_model_path};
+
+use paddock_sim::lidar::LidarConfig;
 
 /// Errors building a driver; each names the driver, the parameter and the value.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -57,6 +66,8 @@ pub enum PolicyError {
     },
     #[error("driver {driver}: {message}")]
     Invalid { driver: String, message: String },
+    #[error(transparent)]
+    Onnx(#[from] onnx::OnnxError),
 }
 
 /// One tunable parameter of a driver.
@@ -105,6 +116,12 @@ pub trait Driver: Send {
     /// Forget per-episode memory.
     fn reset(&mut self);
     fn act(&mut self, obs: &Observation, me: usize) -> Action;
+    /// Why the driver can no longer drive (an ONNX model gave a non-finite action), if it
+    /// cannot. A faulted driver returns a stop action; callers end the car's episode as a
+    /// crash (rollouts) or keep it stopped (the bridge). Cleared by [`Driver::reset`].
+    fn fault(&self) -> Option<&str> {
+        None
+    }
 }
 
 /// Validate `values` against `specs`: count, finiteness and bounds, naming the offender.
@@ -206,8 +223,19 @@ pub fn drivers() -> Vec<DriverInfo> {
     ]
 }
 
-/// Look a driver up by name.
+/// Look a driver up by name (a built-in, or a registered ONNX model's `onnx:<sha256>`).
 pub fn driver_info(name: &str) -> Result<DriverInfo, PolicyError> {
+    if onnx::is_model_name(name) {
+        let (name, policy) = registered_model(name)?;
+        return Ok(DriverInfo {
+            name,
+            about: onnx::ABOUT,
+            sensors: Sensors {
+                lidar: policy.beams().is_some(),
+            },
+            params: Vec::new(),
+        });
+    }
     drivers()
         .into_iter()
         .find(|d| d.name == name)
@@ -222,8 +250,41 @@ pub fn driver_info(name: &str) -> Result<DriverInfo, PolicyError> {
 }
 
 /// Build driver `name` with the parameter vector `params` (in [`DriverInfo::params`]
-/// order) for a car with `vehicle` parameters on `circuit`.
+/// order) for a car with `vehicle` parameters on `circuit`. A registered ONNX model's
+/// name (`onnx:<sha256>`, [`onnx::register`]) builds an [`onnx::OnnxDriver`] on the
+/// process's shared plan; it takes no parameters.
 pub fn build_driver(
+    name: &str,
+    params: &[f64],
+    circuit: &Arc<Circuit>,
+    vehicle: &VehicleParams,
+) -> Result<Box<dyn Driver>, PolicyError> {
+    if onnx::is_model_name(name) {
+        let (name, policy) = registered_model(name)?;
+        check_params(name, &[], params)?;
+        return Ok(Box::new(onnx::OnnxDriver::new(name, policy, vehicle)));
+    }
+    build_builtin(name, params, circuit, vehicle)
+}
+
+/// Check driver `name`'s sensor needs against the car's LIDAR: an ONNX model's scan
+/// input must have the LIDAR's beam count (and field of view, when its metadata gives
+/// one); built-in drivers take any LIDAR.
+pub fn check_lidar(name: &str, lidar: &LidarConfig) -> Result<(), PolicyError> {
+    if onnx::is_model_name(name) {
+        registered_model(name)?.1.check_lidar(lidar)?;
+    }
+    Ok(())
+}
+
+fn registered_model(name: &str) -> Result<(&'static str, Arc<onnx::OnnxPolicy>), PolicyError> {
+    onnx::registered(name).ok_or_else(|| PolicyError::UnknownDriver {
+        name: name.into(),
+        known: "the built-in drivers and the ONNX models registered with this process".into(),
+    })
+}
+
+fn build_builtin(
     name: &str,
     params: &[f64],
     circuit: &Arc<Circuit>,

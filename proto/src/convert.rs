@@ -249,6 +249,7 @@ pub fn rollout_error_to_proto(e: &RolloutError) -> Error {
                     }
                 }
                 PolicyError::Invalid { .. } => format!("agents[{agent}]"),
+                PolicyError::Onnx(_) => format!("agents[{agent}].driver"),
             };
             invalid(field, e.to_string())
         }

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use paddock_policy::build_driver;
+use paddock_policy::{build_driver, check_lidar};
 use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, AgentConfig, AgentStatus, Starts, World, WorldConfig};
 use serde::{Deserialize, Serialize};
@@ -119,7 +119,8 @@ pub fn run_episode(
     let circuit = Circuit::resolve(&scenario.map, &[])?;
     let mut drivers = Vec::with_capacity(scenario.agents.len());
     for (i, a) in scenario.agents.iter().enumerate() {
-        let d = build_driver(&a.driver, &a.params, &circuit, &a.vehicle)
+        let d = check_lidar(&a.driver, &scenario.lidar)
+            .and_then(|()| build_driver(&a.driver, &a.params, &circuit, &a.vehicle))
             .map_err(|source| RolloutError::Driver { agent: i, source })?;
         drivers.push(d);
     }
@@ -139,6 +140,9 @@ pub fn run_episode(
     let mut actions = vec![Action::default(); n];
     let mut ever_collided: Vec<bool> = world.observation()?.collisions.clone();
     let mut steps = 0u64;
+    // when a car's driver faulted (Driver::fault): it is stopped and its episode ends as
+    // a crash at that time
+    let mut faulted: Vec<Option<f64>> = vec![None; n];
     loop {
         let state = world.state()?;
         if let Some(tr) = &mut trajectory
@@ -154,13 +158,20 @@ pub fn run_episode(
                 a.steer.push(obs.steering_angles[i]);
             }
         }
-        if world.done() || steps >= max_steps {
+        let racing = |i: usize, faulted: &[Option<f64>]| {
+            state.agents[i].status == AgentStatus::Racing && faulted[i].is_none()
+        };
+        if world.done() || steps >= max_steps || !(0..n).any(|i| racing(i, &faulted)) {
             break;
         }
         let obs = &state.observation;
         for (i, d) in drivers.iter_mut().enumerate() {
-            actions[i] = if state.agents[i].status == AgentStatus::Racing {
-                d.act(obs, i)
+            actions[i] = if racing(i, &faulted) {
+                let a = d.act(obs, i);
+                if d.fault().is_some() {
+                    faulted[i] = Some(state.time);
+                }
+                a
             } else {
                 Action::default()
             };
@@ -177,8 +188,10 @@ pub fn run_episode(
         .iter()
         .zip(&scenario.agents)
         .zip(&ever_collided)
-        .map(|((a, spec), &collided)| {
+        .zip(&faulted)
+        .map(|(((a, spec), &collided), &fault_time)| {
             let termination = match a.status {
+                _ if fault_time.is_some() => Termination::Crashed,
                 AgentStatus::Finished => Termination::Finished,
                 AgentStatus::Crashed => Termination::Crashed,
                 AgentStatus::Racing => Termination::TimeLimit,
@@ -194,7 +207,7 @@ pub fn run_episode(
                 lap_times: a.laps.lap_times.clone(),
                 collided: collided || termination == Termination::Crashed,
                 progress: a.laps.progress,
-                end_time: a.finish_time,
+                end_time: fault_time.or(a.finish_time),
                 episode_return: a.laps.progress - penalty,
             }
         })
