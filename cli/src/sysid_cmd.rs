@@ -73,30 +73,39 @@ struct AnalyseArgs {
     #[arg(long)]
     vesc_config: Option<PathBuf>,
     /// Worker threads of the analysis (default: every core).
-    #[arg(long)]
+    #[arg(long, value_parser = args::threads())]
     threads: Option<usize>,
 }
 
-/// The files a `--recording` names: the file itself, or a folder's recordings (CSV and
-/// MCAP, by name; a rosbag2 folder's MCAP files), in name order.
+/// A rosbag2 bag folder (a `metadata.yaml` beside its storage files): one recording.
+fn is_bag_folder(path: &Path) -> bool {
+    path.is_dir() && path.join("metadata.yaml").is_file()
+}
+
+/// The recordings a `--recording` names: the file itself, a rosbag2 bag folder, or a
+/// folder's recordings (CSV, MCAP and `.db3` files and bag folders, by name), in name
+/// order.
 fn recording_files(path: &Path) -> Result<Vec<PathBuf>> {
-    if !path.is_dir() {
+    if !path.is_dir() || is_bag_folder(path) {
         return Ok(vec![path.to_path_buf()]);
     }
     let mut files: Vec<PathBuf> = std::fs::read_dir(path)
         .with_context(|| format!("reading the folder {}", path.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
-            p.is_file()
-                && p.extension().is_some_and(|e| {
-                    e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("mcap")
-                })
+            is_bag_folder(p)
+                || (p.is_file()
+                    && p.extension().is_some_and(|e| {
+                        e.eq_ignore_ascii_case("csv")
+                            || e.eq_ignore_ascii_case("mcap")
+                            || e.eq_ignore_ascii_case("db3")
+                    }))
         })
         .collect();
     files.sort();
     if files.is_empty() {
         anyhow::bail!(
-            "the folder {} holds no recordings (*.csv, *.mcap)",
+            "the folder {} holds no recordings (*.csv, *.mcap, *.db3, rosbag2 bag folders)",
             path.display()
         );
     }
