@@ -45,7 +45,7 @@ fn rollout_runs_a_model_file_locally_and_deterministically() {
     let (ok, out, err) = paddock(&args);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
-    assert_eq!(v["policy"], format!("onnx:{}", model_hash(&bytes)));
+    assert_eq!(v["driver"], format!("onnx:{}", model_hash(&bytes)));
     for e in v["episodes"].as_array().unwrap() {
         assert!(e["progress_m"].as_f64().unwrap() > 5.0, "{e}");
     }
