@@ -44,9 +44,12 @@ impl Renderers {
                 self.kept.len() - 1
             }
         };
-        let entry = self.kept.remove(k);
-        self.kept.push(entry);
-        Ok(&self.kept.last().expect("just pushed").2)
+        // the one used last goes to the back: the front is evicted first
+        self.kept[k..].rotate_left(1);
+        self.kept
+            .last()
+            .map(|(_, _, r)| r)
+            .ok_or_else(|| error(ErrorCode::Internal, "env_render", "no renderer kept"))
     }
 
     /// The frames `r` asks for, of session `env`.
@@ -91,7 +94,12 @@ impl Renderers {
         }
         let mut rgb = Vec::with_capacity(frame_bytes * envs.len());
         for &i in &envs {
-            let world = env.world(i).expect("index checked above");
+            let world = env.world(i).ok_or_else(|| {
+                invalid(
+                    "env_render.envs",
+                    format!("env_render.envs: env {i} is not in the session"),
+                )
+            })?;
             let scene = Scene::from_world(world)
                 .map_err(|e| error(ErrorCode::Internal, "env_render", e.to_string()))?;
             rgb.extend_from_slice(&renderer.render(&scene).rgb);
