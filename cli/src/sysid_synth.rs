@@ -19,7 +19,7 @@ use paddock_sim::params::VehicleParams;
 use paddock_sim::rng::Rng;
 use paddock_sim::track::{Circuit, DEFAULT_MAP};
 use paddock_sysid::effects::{EffectKind, parse_effect_spec};
-use paddock_sysid::recording::{Command, McapTopics, Recording, StateSample, wrap_pi};
+use paddock_sysid::recording::{McapTopics, Recording, wrap_pi};
 use serde_json::json;
 
 use crate::sysid_synth_runs::{self, DayPlan, Manoeuvre};
@@ -204,20 +204,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
             if !dropped {
                 let a = driver.act_pose(Pose::new(m[0], m[1], m[2]), m[3]);
                 cmd = (a.steer, a.speed);
-                rec.commands.push(Command {
-                    t: next_row,
-                    steer: cmd.0,
-                    speed: cmd.1,
-                });
-                rec.states.push(StateSample {
-                    t: next_row,
-                    x: m[0],
-                    y: m[1],
-                    yaw: wrap_pi(m[2]),
-                    vx: m[3],
-                    vy: if full_state { m[4] } else { f64::NAN },
-                    yaw_rate: if full_state { m[5] } else { f64::NAN },
-                });
+                sysid_synth_runs::push_row(&mut rec, next_row, cmd, &m, full_state);
             }
             next_row = ((next_row + 0.025 + rng.uniform_range(-0.005, 0.005)) * 1e4).round() / 1e4;
         }

@@ -116,6 +116,32 @@ impl History {
 }
 
 /// Write the runs (`run-NN.csv` in `dir`) and return a summary per run.
+/// One logged row: the command sent at `t` and the measured state `m` (x, y, yaw, vx, vy,
+/// yaw rate); without `full_state` the car logs no vy and no yaw rate (NaN).
+pub(crate) fn push_row(
+    rec: &mut Recording,
+    t: f64,
+    cmd: (f64, f64),
+    m: &[f64; 6],
+    full_state: bool,
+) {
+    rec.commands.push(Command {
+        t,
+        steer: cmd.0,
+        speed: cmd.1,
+    });
+    let unlogged = |v: f64| if full_state { v } else { f64::NAN };
+    rec.states.push(StateSample {
+        t,
+        x: m[0],
+        y: m[1],
+        yaw: wrap_pi(m[2]),
+        vx: m[3],
+        vy: unlogged(m[4]),
+        yaw_rate: unlogged(m[5]),
+    });
+}
+
 pub fn write_day(
     plan: &DayPlan,
     truth: &VehicleParams,
@@ -208,20 +234,7 @@ fn drive(
             let exact = hist.at(next_row - plan.measurement_delay);
             let m: [f64; 6] = std::array::from_fn(|c| exact[c] + plan.noise[c] * rng.normal());
             cmd = sched.at(next_row);
-            rec.commands.push(Command {
-                t: next_row,
-                steer: cmd.0,
-                speed: cmd.1,
-            });
-            rec.states.push(StateSample {
-                t: next_row,
-                x: m[0],
-                y: m[1],
-                yaw: wrap_pi(m[2]),
-                vx: m[3],
-                vy: if plan.full_state { m[4] } else { f64::NAN },
-                yaw_rate: if plan.full_state { m[5] } else { f64::NAN },
-            });
+            push_row(&mut rec, next_row, cmd, &m, plan.full_state);
             let jitter = rng.uniform_range(-0.1, 0.1) * period;
             next_row = ((next_row + period + jitter) * 1e4).round() / 1e4;
         }
