@@ -22,7 +22,7 @@ VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
 PY="${PYTHON:-python3}"
 PINS=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0
       cyclonedds==11.0.1 rosbags==0.11.9 mcap==1.6.0
-      pygame==2.6.1 moviepy==2.2.1 onnx==1.23.2 onnxruntime==1.32.0)
+      pygame==2.6.1 moviepy==2.2.1 onnx==1.23.2 onnxruntime==1.32.0 pettingzoo==1.27.0)
 
 if [ ! -x "$VENV/bin/python" ]; then
     echo "python.sh: creating the venv $VENV"

@@ -6,9 +6,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use paddock_e2e::{Cluster, paddock, serial};
-use paddock_proto::convert::{batch_to_proto, local_map, map_ref, outcome_from_proto};
 use paddock_proto::{Body, MapBundle};
 use paddock_rollout::{EpisodeResult, EpisodeTask, Executor, LocalExecutor, Scenario, task_seed};
+use paddock_wire::{batch_to_proto, local_map, map_ref, outcome_from_bytes};
 
 fn tasks(n: usize, time_limit: f64, job_seed: u64) -> Vec<EpisodeTask> {
     driver_tasks("pure-pursuit", n, time_limit, job_seed)
@@ -60,16 +60,16 @@ fn remote(
             Instant::now() < deadline,
             "the batch did not finish in 120 s"
         );
-        let (rid, body) = client.recv(Duration::from_secs(60)).unwrap();
-        assert_eq!(rid, id, "a reply for another request");
-        match body {
+        let reply = client.recv(Duration::from_secs(60)).unwrap();
+        assert_eq!(reply.request_id, id, "a reply for another request");
+        match reply.body {
             Body::RolloutProgress(p) => on_progress(p.done),
             Body::RolloutResult(r) => {
-                assert_eq!(r.outcomes.len(), tasks.len());
-                return r
-                    .outcomes
+                assert_eq!(r.outcomes as usize, tasks.len());
+                return reply
+                    .payload
                     .iter()
-                    .map(|o| outcome_from_proto(o).unwrap())
+                    .map(|o| outcome_from_bytes(o).unwrap())
                     .collect();
             }
             other => panic!("unexpected reply {other:?}"),
@@ -381,15 +381,17 @@ fn e_fifty_concurrent_clients_get_their_own_replies() {
                 let deadline = Instant::now() + Duration::from_secs(90);
                 while results.is_none() || !status {
                     assert!(Instant::now() < deadline, "client {i}: replies lost");
-                    let (rid, body) = client.recv(Duration::from_secs(60)).unwrap();
-                    match body {
-                        Body::RolloutResult(r) => {
+                    let reply = client.recv(Duration::from_secs(60)).unwrap();
+                    let rid = reply.request_id;
+                    match reply.body {
+                        Body::RolloutResult(_) => {
                             assert_eq!(rid, batch_id, "client {i}: crossed reply");
                             assert!(results.is_none(), "client {i}: two results");
                             results = Some(
-                                r.outcomes
+                                reply
+                                    .payload
                                     .iter()
-                                    .map(|o| outcome_from_proto(o).unwrap())
+                                    .map(|o| outcome_from_bytes(o).unwrap())
                                     .collect::<Vec<_>>(),
                             );
                         }

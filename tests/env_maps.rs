@@ -7,9 +7,10 @@ use std::path::Path;
 use std::time::Duration;
 
 use paddock_e2e::{Cluster, serial};
-use paddock_proto::convert::map_ref;
-use paddock_proto::{Body, EnvObservation, MapBundle, MapRef};
+use paddock_proto::{EnvOp, MapBundle, MapRef};
 use paddock_sim::trackgen::{self, TrackGenConfig};
+use paddock_wire::map_ref;
+use prost::Message;
 
 /// A generated track no machine ships, as a bundle.
 fn generated_map(dir: &Path) -> MapBundle {
@@ -23,8 +24,8 @@ fn generated_map(dir: &Path) -> MapBundle {
     paddock_proto::read_map_dir(&folder, "uploaded").expect("the track reads as a bundle")
 }
 
-fn open_request(map: MapRef) -> Body {
-    Body::EnvOpen(paddock_proto::EnvOpen {
+fn open_request(map: MapRef) -> Vec<u8> {
+    paddock_proto::EnvOpen {
         map: Some(map),
         num_envs: 2,
         seed: 5,
@@ -39,47 +40,46 @@ fn open_request(map: MapRef) -> Body {
         time_limit: 30.0,
         frame_skip: 2,
         ..Default::default()
-    })
+    }
+    .encode_to_vec()
 }
 
 /// The requests of the session after its open: a reset, then steps.
-fn requests(session_id: u64, steps: usize) -> Vec<Body> {
+fn requests(steps: usize) -> Vec<(EnvOp, Vec<u8>)> {
     let actions = paddock_proto::pack_f32(&[0.1, 2.0, -0.05, 3.0]);
-    let mut out = vec![Body::EnvReset(paddock_proto::EnvReset {
-        session_id,
+    let reset = paddock_proto::EnvReset {
         seeds: vec![11, 12],
         ..Default::default()
-    })];
+    };
+    let mut out = vec![(EnvOp::EnvReset, reset.encode_to_vec())];
     out.extend((0..steps).map(|_| {
-        Body::EnvStep(paddock_proto::EnvStep {
-            session_id,
+        let step = paddock_proto::EnvStep {
             actions: actions.clone(),
             reset_envs: vec![],
-        })
+        };
+        (EnvOp::EnvStep, step.encode_to_vec())
     }));
     out
 }
 
 fn open(client: &mut paddock_broker::client::Client, map: MapRef) -> u64 {
-    match client.request(open_request(map)) {
-        Ok(Body::EnvOpened(o)) => {
-            assert_eq!((o.num_envs, o.num_beams), (2, 60));
-            o.session_id
-        }
-        other => panic!("expected env_opened, got {other:?}"),
-    }
+    let (reply, frames) = client
+        .env(0, EnvOp::EnvOpen, Some(open_request(map)))
+        .expect("the session opens");
+    let o = paddock_proto::EnvOpened::decode(&frames[0][..]).unwrap();
+    assert_eq!((o.num_envs, o.num_beams), (2, 60));
+    reply.session_id
 }
 
-/// The observation a request gets, without the session id (the two clusters number
-/// their sessions alike, but that is not what is compared).
-fn observe(client: &mut paddock_broker::client::Client, request: Body) -> EnvObservation {
-    match client.request(request) {
-        Ok(Body::EnvObservation(mut o)) => {
-            o.session_id = 0;
-            o
-        }
-        other => panic!("expected env_observation, got {other:?}"),
-    }
+/// The payload frames a request gets (the observation message and the scans).
+fn observe(
+    client: &mut paddock_broker::client::Client,
+    sid: u64,
+    (op, payload): (EnvOp, Vec<u8>),
+) -> Vec<Vec<u8>> {
+    let (reply, frames) = client.env(sid, op, Some(payload)).expect("an observation");
+    assert_eq!(reply.session_id, sid);
+    frames.iter().map(|f| f.to_vec()).collect()
 }
 
 fn worker_has(c: &Cluster, worker: usize, hash: &str) -> bool {
@@ -95,7 +95,7 @@ fn env_sessions_fetch_an_uploaded_map_and_replay_onto_a_worker_without_it() {
     let steps = 4;
 
     // the reference: a worker whose cache holds the map before it starts
-    let expected: Vec<EnvObservation> = {
+    let expected: Vec<Vec<Vec<u8>>> = {
         let mut c = Cluster::start(0, 1);
         let held = c.maps.path().join("w0").join(&bundle.hash).join("uploaded");
         paddock_proto::write_map_dir(&bundle, &held).unwrap();
@@ -104,9 +104,9 @@ fn env_sessions_fetch_an_uploaded_map_and_replay_onto_a_worker_without_it() {
         let mut client = c.client();
         client.put_map(bundle.clone()).unwrap();
         let sid = open(&mut client, map.clone());
-        requests(sid, steps)
+        requests(steps)
             .into_iter()
-            .map(|r| observe(&mut client, r))
+            .map(|r| observe(&mut client, sid, r))
             .collect()
     };
     assert_eq!(expected.len(), steps + 1);
@@ -118,10 +118,14 @@ fn env_sessions_fetch_an_uploaded_map_and_replay_onto_a_worker_without_it() {
     client.put_map(bundle.clone()).unwrap();
     let sid = open(&mut client, map.clone());
     assert!(worker_has(&c, 0, &bundle.hash), "worker 0 fetched the map");
-    let session = requests(sid, steps);
+    let session = requests(steps);
     let split = 3;
     for (k, r) in session[..split].iter().enumerate() {
-        assert_eq!(observe(&mut client, r.clone()), expected[k], "request {k}");
+        assert_eq!(
+            observe(&mut client, sid, r.clone()),
+            expected[k],
+            "request {k}"
+        );
     }
 
     // its worker dies; the broker rebuilds the session on a second worker that has
@@ -133,7 +137,7 @@ fn env_sessions_fetch_an_uploaded_map_and_replay_onto_a_worker_without_it() {
     c.wait_workers(1, Duration::from_secs(20));
     for (k, r) in session.iter().enumerate().skip(split) {
         assert_eq!(
-            observe(&mut client, r.clone()),
+            observe(&mut client, sid, r.clone()),
             expected[k],
             "request {k} after the replay"
         );

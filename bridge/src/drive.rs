@@ -56,6 +56,9 @@ pub struct DriveCore {
     odom_clock: SensorClock,
     speed: f64,
     last: Option<StopReason>,
+    /// The driver's fault was logged (an ONNX model's non-finite action: the driver
+    /// returns the stop action from then on).
+    fault_logged: bool,
 }
 
 impl DriveCore {
@@ -106,6 +109,7 @@ impl DriveCore {
             odom_clock: SensorClock::new(drift),
             speed: 0.0,
             last: None,
+            fault_logged: false,
         })
     }
 
@@ -120,6 +124,12 @@ impl DriveCore {
 
     pub fn safety(&self) -> &Safety {
         &self.safety
+    }
+
+    /// Why the driver can no longer drive (an ONNX model's non-finite action), if it
+    /// cannot: it then asks for the stop action on every command.
+    pub fn fault(&self) -> Option<&str> {
+        self.driver.fault()
     }
 
     /// Where the car's laser sits: scans are re-projected to the driver's laser, and the
@@ -225,6 +235,12 @@ impl DriveCore {
         } else {
             Action::default()
         };
+        if !self.fault_logged
+            && let Some(fault) = self.driver.fault()
+        {
+            tracing::error!(%fault, "the driver faulted: the car is held stopped");
+            self.fault_logged = true;
+        }
         let needs_scan = self.lidar_driver || self.safety.needs_scan();
         let verdict = self
             .safety
@@ -334,6 +350,9 @@ pub struct DriveSummary {
     /// "/tf_static", or "default": the driver's laser position).
     pub laser_mount: LaserMount,
     pub laser_mount_source: &'static str,
+    /// The driver's fault, when it faulted (an ONNX model's non-finite action): the car
+    /// was held stopped from then on.
+    pub fault: Option<String>,
 }
 
 fn epoch_ns() -> i64 {
@@ -535,6 +554,7 @@ pub fn run_drive(
         safety: *core.safety().counters(),
         laser_mount: core.laser_mount(),
         laser_mount_source: mount_source,
+        fault: core.fault().map(str::to_string),
     };
     tracing::info!(
         commands,

@@ -1,19 +1,28 @@
-//! Which driver the bridge runs: a `paddock tune` result or a registry name, with
-//! parameter overrides.
+//! Which driver the bridge runs: a `paddock tune` result, an ONNX model file or a
+//! registry name, with parameter overrides.
+//!
+//! A model file is read, checked against the observation contract and optimised once
+//! (registered with the process as `onnx:<sha256>`, as `paddock rollout` does), so the
+//! bridge runs the very plan, and gives the very action bits, that a local rollout does.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use paddock_policy::{Driver, ParamSpec, build_driver, driver_info};
+use paddock_policy::{Driver, ParamSpec, build_driver, driver_info, is_model_path};
+use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::track::Circuit;
 
 use crate::BridgeError;
 
-/// Which driver with which parameters: a `paddock tune` result or a registry name.
+/// Which driver with which parameters: a `paddock tune` result, an ONNX model or a
+/// registry name.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DriverSpec {
+    /// The registry name (`onnx:<sha256>` for a model file).
     pub name: String,
+    /// What the user gave: the name, or the file (tune result, model).
+    pub source: String,
     /// In the driver's parameter order.
     pub params: Vec<f64>,
     /// The map a tune result was tuned on.
@@ -24,7 +33,20 @@ impl DriverSpec {
     /// `driver` is a `paddock tune` result.json (its `driver`, `params.tuned` and `map`
     /// fields; `policy` in results written before the rename) when it names an existing file, otherwise a driver name with its defaults;
     /// `overrides` (`name=value`) apply on top either way.
+    ///
+    /// A path ending in `.onnx` is an ONNX model: read, checked and registered with this
+    /// process; it takes no parameters.
     pub fn resolve(driver: &str, overrides: &[(String, f64)]) -> Result<Self, BridgeError> {
+        if is_model_path(driver) {
+            let name = paddock_policy::DriverSpec::parse(driver)?.register()?;
+            let params = paddock_policy::params_from_overrides(&name, &[], overrides)?;
+            return Ok(Self {
+                name,
+                source: driver.to_string(),
+                params,
+                map: None,
+            });
+        }
         let path = Path::new(driver);
         if path.is_file() {
             return Self::from_tune_result(path, overrides);
@@ -40,6 +62,7 @@ impl DriverSpec {
         let params = paddock_policy::params_from_overrides(info.name, &info.params, overrides)?;
         Ok(Self {
             name: info.name.to_string(),
+            source: driver.to_string(),
             params,
             map: None,
         })
@@ -79,6 +102,7 @@ impl DriverSpec {
         let params = paddock_policy::params_from_overrides(info.name, &info.params, &named)?;
         Ok(Self {
             name: info.name.to_string(),
+            source: path.display().to_string(),
             params,
             map: v["map"].as_str().map(str::to_string),
         })
@@ -86,6 +110,12 @@ impl DriverSpec {
 
     pub fn param_specs(&self) -> Result<Vec<ParamSpec>, BridgeError> {
         Ok(driver_info(&self.name)?.params)
+    }
+
+    /// Check the driver against the LIDAR it will read: an ONNX model's scan input must
+    /// have its beam count (and field of view, when the model's metadata gives one).
+    pub fn check_lidar(&self, lidar: &LidarConfig) -> Result<(), BridgeError> {
+        Ok(paddock_policy::check_lidar(&self.name, lidar)?)
     }
 
     pub fn build(

@@ -313,7 +313,10 @@ pub fn run_sil(
     let starts = Starts::Grid { s: options.start_s };
     world.reset(options.seed, &starts)?;
     let mut opp_driver: Option<Box<dyn Driver>> = match &options.opponent {
-        Some(Opponent::Driver(spec)) => Some(spec.build(&circuit, &options.vehicle)?),
+        Some(Opponent::Driver(spec)) => {
+            spec.check_lidar(&options.lidar)?;
+            Some(spec.build(&circuit, &options.vehicle)?)
+        }
         _ => None,
     };
 

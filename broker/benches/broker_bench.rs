@@ -12,16 +12,14 @@
 //! the scaling from one to two workers) are measured with real worker processes by
 //! `paddock perf-cluster`, not here.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
-
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use common::*;
 use paddock_broker::client::Client;
-use paddock_proto::{Body, pack_f32, pack_f64};
+use paddock_broker::{Broker, BrokerConfig, RouteOnly};
+use paddock_proto::{Body, EnvOp, decode, encode, pack_f32, pack_f64};
+use prost::Message;
 
 const BEAMS: usize = 1080;
 
@@ -46,56 +44,67 @@ fn echo_worker(
 ) -> std::thread::JoinHandle<()> {
     let backend = backend.to_string();
     std::thread::spawn(move || {
-        let peer = RawPeer::connect_in(ctx, &backend);
+        let s = ctx.socket(zmq::DEALER).unwrap();
+        s.set_linger(0).unwrap();
+        s.connect(&backend).unwrap();
         let mut spin_until = Instant::now();
-        peer.send(
-            1,
-            Body::WorkerHello(paddock_proto::WorkerHello {
-                worker_id: "echo".into(),
-                capacity: 1,
-                ..Default::default()
-            }),
-        );
+        let hello = paddock_proto::WorkerHello {
+            worker_id: "echo".into(),
+            capacity: 1,
+            ..Default::default()
+        };
+        s.send(encode(1, Body::WorkerHello(hello)), 0).unwrap();
         let mut num_envs = 1usize;
         while !stop.load(Ordering::Relaxed) {
-            while Instant::now() < spin_until && peer.socket.poll(zmq::POLLIN, 0).unwrap() == 0 {
+            while Instant::now() < spin_until && s.poll(zmq::POLLIN, 0).unwrap() == 0 {
                 std::thread::yield_now();
             }
-            let Some((rid, body)) = peer.try_recv(Duration::from_millis(20)) else {
+            if s.poll(zmq::POLLIN, 20).unwrap() == 0 {
+                continue;
+            }
+            let mut parts = s.recv_multipart(0).unwrap();
+            let payload = parts.split_off(1);
+            let Ok((rid, Body::EnvRequest(r))) = decode(&parts[0]) else {
                 continue;
             };
-            match body {
-                Body::EnvOpen(o) => {
-                    num_envs = o.num_envs as usize;
-                    peer.send(
-                        rid,
-                        Body::EnvOpened(paddock_proto::EnvOpened {
-                            session_id: 1,
-                            num_envs: o.num_envs,
-                            num_beams: BEAMS as u32,
-                            num_agents: 1,
-                            ..Default::default()
-                        }),
-                    );
-                }
-                Body::EnvStep(s) => {
-                    let obs = paddock_proto::EnvObservation {
-                        session_id: s.session_id,
-                        num_envs: num_envs as u32,
-                        scans: pack_f32(&vec![1.5; num_envs * BEAMS]),
-                        states: pack_f64(&vec![0.25; num_envs * 7]),
-                        rewards: pack_f64(&vec![0.1; num_envs]),
-                        terminated: vec![0; num_envs],
-                        truncated: vec![0; num_envs],
-                        progress: pack_f64(&vec![1.0; num_envs]),
-                        laps: vec![0; 4 * num_envs],
-                        time: pack_f64(&vec![0.01; num_envs]),
+            let header = |fingerprint| {
+                encode(
+                    rid,
+                    Body::EnvReply(paddock_proto::EnvReply {
+                        session_id: r.session_id,
+                        op: r.op,
+                        fingerprint,
                         ..Default::default()
-                    };
-                    peer.send(rid, Body::EnvObservation(obs));
-                    spin_until = Instant::now() + spin(2);
-                }
-                _ => {}
+                    }),
+                )
+            };
+            if r.op == EnvOp::EnvOpen as i32 {
+                let o = paddock_proto::EnvOpen::decode(payload[0].as_slice()).unwrap();
+                num_envs = o.num_envs as usize;
+                let opened = paddock_proto::EnvOpened {
+                    num_envs: o.num_envs,
+                    num_beams: BEAMS as u32,
+                    num_agents: 1,
+                    ..Default::default()
+                };
+                s.send_multipart([header(0), opened.encode_to_vec()], 0)
+                    .unwrap();
+            } else if r.op == EnvOp::EnvStep as i32 {
+                let obs = paddock_proto::EnvObservation {
+                    num_envs: num_envs as u32,
+                    states: pack_f64(&vec![0.25; num_envs * 7]),
+                    rewards: pack_f64(&vec![0.1; num_envs]),
+                    terminated: vec![0; num_envs],
+                    truncated: vec![0; num_envs],
+                    progress: pack_f64(&vec![1.0; num_envs]),
+                    laps: vec![0; 4 * num_envs],
+                    time: pack_f64(&vec![0.01; num_envs]),
+                    ..Default::default()
+                };
+                let scans = pack_f32(&vec![1.5; num_envs * BEAMS]);
+                s.send_multipart([header(7), obs.encode_to_vec(), scans], 0)
+                    .unwrap();
+                spin_until = Instant::now() + spin(2);
             }
         }
     })
@@ -125,33 +134,46 @@ fn env_round_trip(num_envs: u32, steps: usize, inproc: bool) {
     let dir = tempfile::tempdir().unwrap();
     let ctx = zmq::Context::new();
     let local = "inproc://bench-workers";
-    let broker = TestBroker::start_in(dir.path().into(), ctx.clone(), |c| {
-        c.local_backend = Some(local.into());
-        c.spin = spin(1);
-    });
+    let mut cfg = BrokerConfig::new("tcp://127.0.0.1:0", "tcp://127.0.0.1:0", dir.path());
+    cfg.local_backend = Some(local.into());
+    cfg.spin = spin(1);
+    let mut broker = Broker::bind_in(cfg, RouteOnly, ctx.clone()).unwrap();
+    let (frontend, backend) = (
+        broker.frontend_endpoint().to_string(),
+        broker.backend_endpoint().to_string(),
+    );
     let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let broker_thread = std::thread::spawn(move || broker.run(&flag).unwrap());
     let (worker_ctx, endpoint) = if inproc {
         (ctx.clone(), local.to_string())
     } else {
-        (zmq::Context::new(), broker.backend.clone())
+        (zmq::Context::new(), backend)
     };
     let worker = echo_worker(worker_ctx, &endpoint, stop.clone());
-    let mut c = Client::connect(&broker.frontend).unwrap();
+    let mut c = Client::connect(&frontend).unwrap();
     c.spin = spin(0);
-    let (bundle, map) = lakeside();
-    c.put_map(bundle).unwrap();
+    let map = paddock_proto::MapRef {
+        name: "lakeside".into(),
+        hash: "0".repeat(64),
+    };
+    let open = paddock_proto::EnvOpen {
+        map: Some(map),
+        num_envs,
+        ..Default::default()
+    };
     let session = loop {
-        match c.request(Body::EnvOpen(paddock_proto::EnvOpen {
-            map: Some(map.clone()),
-            num_envs,
-            ..Default::default()
-        })) {
-            Ok(Body::EnvOpened(o)) => break o.session_id,
+        match c.env(0, EnvOp::EnvOpen, Some(open.encode_to_vec())) {
+            Ok((r, _)) => break r.session_id,
             // the worker may not have said hello yet
             _ => std::thread::sleep(Duration::from_millis(20)),
         }
     };
-    let actions = pack_f32(&vec![0.1; 2 * num_envs as usize]);
+    let step = paddock_proto::EnvStep {
+        actions: pack_f32(&vec![0.1; 2 * num_envs as usize]),
+        ..Default::default()
+    }
+    .encode_to_vec();
     let mut times = Vec::with_capacity(steps);
     let mut switches = 0;
     for i in 0..steps + 200 {
@@ -159,15 +181,9 @@ fn env_round_trip(num_envs: u32, steps: usize, inproc: bool) {
             switches = context_switches();
         }
         let t0 = Instant::now();
-        let reply = c
-            .request(Body::EnvStep(paddock_proto::EnvStep {
-                session_id: session,
-                actions: actions.clone(),
-                ..Default::default()
-            }))
-            .unwrap();
+        let (reply, frames) = c.env(session, EnvOp::EnvStep, Some(step.clone())).unwrap();
         let dt = t0.elapsed().as_secs_f64() * 1e6;
-        assert!(matches!(reply, Body::EnvObservation(_)));
+        assert_eq!((reply.session_id, frames.len()), (session, 2));
         if i >= 200 {
             times.push(dt);
         }
@@ -182,6 +198,7 @@ fn env_round_trip(num_envs: u32, steps: usize, inproc: bool) {
     );
     stop.store(true, Ordering::Relaxed);
     worker.join().unwrap();
+    broker_thread.join().unwrap();
 }
 
 fn main() {

@@ -1,7 +1,8 @@
 //! A small blocking client of the broker's frontend: one DEALER socket, requests
-//! matched to replies by request id ([`Client`]), and [`RemoteExecutor`], the
-//! [`paddock_rollout::Executor`] that runs batches through a broker (uploading maps
-//! the broker lacks).
+//! matched to replies by request id, each message an Envelope and its payload frames
+//! ([`Client`]). Running batches of episodes through a broker (the
+//! `paddock_rollout::Executor` of `--endpoint`) is the CLI's `RemoteExecutor`, on top
+//! of this client and `paddock-wire`.
 //!
 //! ```no_run
 //! use paddock_broker::client::Client;
@@ -33,6 +34,9 @@ pub enum ClientError {
     Remote(paddock_proto::Error),
     #[error("undecodable reply: {0}")]
     Protocol(String),
+    /// The request was not sent (its socket would block, or ZeroMQ refused it).
+    #[error("the request could not be sent to the broker: {0}")]
+    Send(zmq::Error),
     /// The broker did not let this client in (its CURVE key is not allowed, or the
     /// handshake failed): reported as soon as libzmq sees it, not after the timeout.
     #[error(transparent)]
@@ -51,6 +55,15 @@ impl ClientError {
 
 fn zmq_err(what: &'static str) -> impl FnOnce(zmq::Error) -> ClientError {
     move |source| ClientError::Zmq { what, source }
+}
+
+/// A message received: its request id, its Envelope body and its payload frames (as
+/// ZeroMQ received them, not copied).
+#[derive(Debug)]
+pub struct Received {
+    pub request_id: u64,
+    pub body: Body,
+    pub payload: Vec<zmq::Message>,
 }
 
 /// A connection to a broker's frontend.
@@ -99,16 +112,26 @@ impl Client {
 
     /// Sends a message with a fresh request id and returns that id.
     pub fn send(&mut self, body: Body) -> Result<u64, ClientError> {
+        self.send_with(body, Vec::new())
+    }
+
+    /// Sends a message and its payload frames with a fresh request id; returns the id.
+    pub fn send_with(&mut self, body: Body, payload: Vec<Vec<u8>>) -> Result<u64, ClientError> {
         let id = self.next_id;
         self.next_id += 1;
-        self.socket
-            .send(paddock_proto::encode(id, body), 0)
-            .map_err(zmq_err("send"))?;
+        let header = paddock_proto::encode(id, body);
+        let flags = if payload.is_empty() { 0 } else { zmq::SNDMORE };
+        self.socket.send(header, flags).map_err(ClientError::Send)?;
+        let n = payload.len();
+        for (i, frame) in payload.into_iter().enumerate() {
+            let flags = if i + 1 < n { zmq::SNDMORE } else { 0 };
+            self.socket.send(frame, flags).map_err(ClientError::Send)?;
+        }
         Ok(id)
     }
 
     /// Receives the next message, whatever request it answers.
-    pub fn recv(&mut self, timeout: Duration) -> Result<(u64, Body), ClientError> {
+    pub fn recv(&mut self, timeout: Duration) -> Result<Received, ClientError> {
         let t0 = Instant::now();
         let spin_until = t0 + self.spin.min(timeout);
         let mut ready = self.socket.poll(zmq::POLLIN, 0).map_err(zmq_err("poll"))?;
@@ -143,8 +166,29 @@ impl Client {
         if ready == 0 {
             return Err(ClientError::Timeout(timeout));
         }
-        let frame = self.socket.recv_bytes(0).map_err(zmq_err("recv"))?;
-        paddock_proto::decode(&frame).map_err(|(_, e)| ClientError::Protocol(e.to_string()))
+        let header = self.socket.recv_msg(0).map_err(zmq_err("recv"))?;
+        let mut more = header.get_more();
+        let mut payload = Vec::new();
+        while more {
+            let m = self.socket.recv_msg(0).map_err(zmq_err("recv"))?;
+            more = m.get_more();
+            payload.push(m);
+        }
+        let (request_id, body) = paddock_proto::decode(&header)
+            .map_err(|(_, e)| ClientError::Protocol(e.to_string()))?;
+        let want = paddock_proto::payload_frames(&body);
+        if payload.len() != want {
+            return Err(ClientError::Protocol(format!(
+                "{} came with {} payload frames, expected {want}",
+                paddock_proto::body_name(&body),
+                payload.len()
+            )));
+        }
+        Ok(Received {
+            request_id,
+            body,
+            payload,
+        })
     }
 
     /// Sends a request and waits for its reply. Messages for other request ids are
@@ -154,30 +198,57 @@ impl Client {
     pub fn request_with(
         &mut self,
         body: Body,
+        payload: Vec<Vec<u8>>,
         mut on_update: impl FnMut(&Body),
-    ) -> Result<Body, ClientError> {
-        let id = self.send(body)?;
+    ) -> Result<Received, ClientError> {
+        let id = self.send_with(body, payload)?;
         let deadline = Instant::now() + self.timeout;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Err(ClientError::Timeout(self.timeout));
             }
-            let (rid, reply) = self.recv(left)?;
-            if rid != id {
+            let reply = self.recv(left)?;
+            if reply.request_id != id {
                 continue;
             }
-            match reply {
+            match reply.body {
                 Body::Error(e) => return Err(ClientError::Remote(e)),
-                Body::RolloutProgress(_) => on_update(&reply),
-                other => return Ok(other),
+                Body::EnvReply(paddock_proto::EnvReply { error: Some(e), .. }) => {
+                    return Err(ClientError::Remote(e));
+                }
+                Body::RolloutProgress(_) => on_update(&reply.body),
+                _ => return Ok(reply),
             }
         }
     }
 
-    /// [`Client::request_with`] ignoring updates.
+    /// A request without payload frames and its reply's body (payload frames dropped).
     pub fn request(&mut self, body: Body) -> Result<Body, ClientError> {
-        self.request_with(body, |_| {})
+        self.request_with(body, Vec::new(), |_| {}).map(|r| r.body)
+    }
+
+    /// A request on env session `session_id` (0 to open one): `payload` is the encoded
+    /// `EnvOpen`, `EnvReset`, `EnvStep` or `EnvRender` (none for a close). The reply's
+    /// header (with the session id) and payload frames.
+    pub fn env(
+        &mut self,
+        session_id: u64,
+        op: paddock_proto::EnvOp,
+        payload: Option<Vec<u8>>,
+    ) -> Result<(paddock_proto::EnvReply, Vec<zmq::Message>), ClientError> {
+        let header = Body::EnvRequest(paddock_proto::EnvRequest {
+            session_id,
+            op: op as i32,
+        });
+        let reply = self.request_with(header, payload.into_iter().collect(), |_| {})?;
+        match reply.body {
+            Body::EnvReply(r) => Ok((r, reply.payload)),
+            other => Err(ClientError::Protocol(format!(
+                "expected env_reply, got {}",
+                paddock_proto::body_name(&other)
+            ))),
+        }
     }
 
     /// Stores a map in the broker (idempotent).
@@ -198,158 +269,4 @@ impl Client {
 pub fn is_missing_map(e: &ClientError) -> bool {
     matches!(e, ClientError::Remote(r)
         if r.code == paddock_proto::ErrorCode::NotFound as i32 && r.field.ends_with("map.hash"))
-}
-
-impl Client {
-    /// [`Client::request_with`], storing `maps` in the broker and retrying once when
-    /// the broker does not know a map hash the request names.
-    pub fn request_with_maps(
-        &mut self,
-        body: Body,
-        maps: &[paddock_proto::MapBundle],
-        mut on_update: impl FnMut(&Body),
-    ) -> Result<Body, ClientError> {
-        match self.request_with(body.clone(), &mut on_update) {
-            Err(e) if is_missing_map(&e) && !maps.is_empty() => {
-                for m in maps {
-                    self.put_map(m.clone())?;
-                }
-                self.request_with(body, on_update)
-            }
-            other => other,
-        }
-    }
-}
-
-/// Runs batches of episodes through a broker: the [`paddock_rollout::Executor`] of
-/// `--endpoint`, so tuning, benchmarks and rollouts do not care where episodes run.
-/// Maps are sent by content hash, and uploaded when the broker lacks them.
-pub struct RemoteExecutor {
-    client: std::sync::Mutex<Client>,
-    maps: std::sync::Mutex<std::collections::HashMap<String, paddock_proto::MapBundle>>,
-    parallelism: usize,
-}
-
-impl RemoteExecutor {
-    /// Connects to a broker's frontend and asks for its capacity.
-    pub fn connect(endpoint: &str) -> Result<Self, ClientError> {
-        Self::connect_with(endpoint, &Curve::Off)
-    }
-
-    /// [`RemoteExecutor::connect`] with CURVE security.
-    pub fn connect_with(endpoint: &str, curve: &Curve) -> Result<Self, ClientError> {
-        let mut client = Client::connect_with(endpoint, curve)?;
-        client.timeout = Duration::from_secs(10);
-        let parallelism: usize =
-            match client.request(Body::StatusRequest(paddock_proto::StatusRequest {}))? {
-                Body::BrokerStatus(s) => s.workers.iter().map(|w| w.capacity as usize).sum(),
-                other => {
-                    return Err(ClientError::Protocol(format!(
-                        "expected broker_status, got {}",
-                        paddock_proto::body_name(&other)
-                    )));
-                }
-            };
-        // batches may run for a long time; progress arrives meanwhile
-        client.timeout = Duration::from_secs(24 * 3600);
-        Ok(Self {
-            client: std::sync::Mutex::new(client),
-            maps: std::sync::Mutex::new(std::collections::HashMap::new()),
-            parallelism: parallelism.max(1),
-        })
-    }
-
-    fn bundle(&self, map: &str) -> Result<paddock_proto::MapBundle, paddock_proto::Error> {
-        let mut maps = self.maps.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(b) = maps.get(map) {
-            return Ok(b.clone());
-        }
-        let b = paddock_proto::convert::local_map(map)?;
-        maps.insert(map.to_string(), b.clone());
-        Ok(b)
-    }
-
-    fn try_run(
-        &self,
-        tasks: &[paddock_rollout::EpisodeTask],
-        progress: &(dyn Fn(usize) + Sync),
-    ) -> Result<Vec<paddock_proto::TaskOutcome>, String> {
-        let mut bundles: Vec<paddock_proto::MapBundle> = Vec::new();
-        let mut failure = None;
-        let batch = paddock_proto::convert::batch_to_proto(
-            tasks,
-            |map| match self.bundle(map) {
-                Ok(b) => {
-                    let r = paddock_proto::convert::map_ref(&b);
-                    if !bundles.iter().any(|x| x.hash == b.hash) {
-                        bundles.push(b);
-                    }
-                    r
-                }
-                Err(e) => {
-                    failure = Some(format!("map {map:?}: {}", e.message));
-                    paddock_proto::MapRef::default()
-                }
-            },
-            true,
-        );
-        if let Some(f) = failure {
-            return Err(f);
-        }
-        let mut client = self.client.lock().unwrap_or_else(|p| p.into_inner());
-        let reply = client
-            .request_with_maps(Body::RolloutBatch(batch), &bundles, |u| {
-                if let Body::RolloutProgress(p) = u {
-                    progress(p.done as usize);
-                }
-            })
-            .map_err(|e| e.to_string())?;
-        match reply {
-            Body::RolloutResult(r) if r.outcomes.len() == tasks.len() => Ok(r.outcomes),
-            Body::RolloutResult(r) => Err(format!(
-                "the broker answered {} outcomes for {} tasks",
-                r.outcomes.len(),
-                tasks.len()
-            )),
-            other => Err(format!(
-                "expected rollout_result, got {}",
-                paddock_proto::body_name(&other)
-            )),
-        }
-    }
-}
-
-impl paddock_rollout::Executor for RemoteExecutor {
-    fn run_batch(
-        &self,
-        tasks: &[paddock_rollout::EpisodeTask],
-        progress: &(dyn Fn(usize) + Sync),
-    ) -> Vec<Result<paddock_rollout::EpisodeResult, paddock_rollout::RolloutError>> {
-        if tasks.is_empty() {
-            return Vec::new();
-        }
-        match self.try_run(tasks, progress) {
-            Ok(outcomes) => {
-                progress(tasks.len());
-                outcomes
-                    .iter()
-                    .map(paddock_proto::convert::outcome_from_proto)
-                    .collect()
-            }
-            Err(reason) => tasks
-                .iter()
-                .map(|_| {
-                    Err(paddock_rollout::RolloutError::Invalid {
-                        field: "endpoint".into(),
-                        value: String::new(),
-                        reason: reason.clone(),
-                    })
-                })
-                .collect(),
-        }
-    }
-
-    fn parallelism(&self) -> usize {
-        self.parallelism
-    }
 }

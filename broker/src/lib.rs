@@ -7,15 +7,22 @@
 //! starve a small one, requeues the tasks of workers that fall silent, drops late
 //! duplicate results by task id and reduces results in task order, so a batch gives
 //! the same results bit for bit however many workers ran it. Jobs (tuning runs,
-//! benchmarks, stored batches) run as rounds in the broker and are stored in SQLite
-//! after every round, so a restarted broker resumes them.
+//! benchmarks, stored batches) run as rounds planned by a [`plan::Planner`] from a crate
+//! above this one and are stored in SQLite after every round, so a restarted broker
+//! resumes them.
+//!
+//! The broker knows nothing of the simulator: this crate depends on the wire protocol
+//! and ZeroMQ only. It routes by each message's small Envelope header and forwards the
+//! payload frames (observations, scenarios, results) without decoding them.
 //!
 //! Layers, each testable alone:
 //! - [`core`]: the protocol state machines (worker liveness and credit, the task
-//!   table with fairness and bounds, env-session routing), free of sockets and of the
-//!   wall clock, unit-tested with a virtual clock;
-//! - [`state`]: the store under `--state DIR` (job table, maps by content hash);
-//! - [`jobs`]: what each job kind hands out per round and how it reduces;
+//!   table with fairness and bounds, env-session routing and replay, blobs held for
+//!   tasks), free of sockets and of the wall clock, unit-tested with a virtual clock;
+//! - [`state`]: the store under `--state DIR` (job table, maps and blobs by content hash);
+//! - [`plan`]: the trait the domain implements: checks, job plans as rounds;
+//! - `office`: the back-office thread that runs plans and the store off the socket
+//!   thread;
 //! - [`server`]: [`Broker`], the socket loop around them;
 //! - [`client`]: a small blocking client ([`client::Client`]) for the CLI and tests.
 //!
@@ -23,12 +30,14 @@
 
 pub mod client;
 pub mod core;
-pub mod jobs;
+mod office;
+pub mod plan;
 pub mod server;
 pub mod state;
 
 /// ZeroMQ with CURVE: key pairs, socket security, the ZAP authenticator.
 pub use paddock_libzmq as curve;
+pub use plan::{JobOutput, JobPlan, Maps, Planner, Round, RouteOnly};
 pub use server::{Broker, BrokerConfig, BrokerError, Security};
 /// The ZeroMQ binding the broker is built on: a process that embeds the broker and its
 /// workers creates one [`zmq::Context`] for both ([`Broker::bind_in`]).

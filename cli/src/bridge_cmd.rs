@@ -139,7 +139,8 @@ impl RosArgs {
 
 #[derive(Args)]
 struct DriveArgs {
-    /// A `paddock tune` result.json, or a driver name (`paddock drivers`).
+    /// A `paddock tune` result.json, an ONNX model file (`model.onnx`; docs/onnx.md), or
+    /// a driver name (`paddock drivers`).
     #[arg(long, alias = "policy")]
     driver: String,
     /// Parameter overrides, `name=value,name=value`.
@@ -213,8 +214,8 @@ struct SilArgs {
     /// Map: shipped name or directory.
     #[arg(long, default_value = DEFAULT_MAP)]
     map: String,
-    /// A second car: a driver name (driven inside the SIL) or `ros` (driven over
-    /// /opp_drive).
+    /// A second car: a driver name or an ONNX model file (driven inside the SIL), or
+    /// `ros` (driven over /opp_drive).
     #[arg(long)]
     opponent: Option<String>,
     /// Parameter overrides for the opponent driver, `name=value,...`.
@@ -372,7 +373,8 @@ fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
 
 fn drive(a: &DriveArgs) -> Result<()> {
     let ros = a.ros.config(Frames::default())?;
-    let spec = DriverSpec::resolve(&a.driver, &overrides(a.params.as_deref())?)?;
+    let spec =
+        DriverSpec::resolve(&a.driver, &overrides(a.params.as_deref())?).context("--driver")?;
     let map = a
         .map
         .clone()
@@ -407,11 +409,17 @@ fn drive(a: &DriveArgs) -> Result<()> {
             }),
         ..DriveOptions::default()
     };
+    spec.check_lidar(&options.lidar).context("--driver")?;
     let core = DriveCore::new(driver, options.lidar.clone(), options.safety)?;
     let stop = stop_flag()?;
+    let shown = if spec.source == spec.name {
+        spec.name.clone()
+    } else {
+        format!("{} ({})", spec.source, spec.name)
+    };
     eprintln!(
-        "driving {} (map {}) on {} -> {}, domain {}; Ctrl-C, SIGTERM or SIGHUP stops the car",
-        spec.name, circuit.name, ros.topics.scan, ros.topics.drive, ros.domain_id
+        "driving {shown} (map {}) on {} -> {}, domain {}; Ctrl-C, SIGTERM or SIGHUP stops the car",
+        circuit.name, ros.topics.scan, ros.topics.drive, ros.domain_id
     );
     let s = run_drive(core, &ros, &options, stop);
     report_signal();
@@ -445,6 +453,9 @@ fn drive(a: &DriveArgs) -> Result<()> {
             e.p99_ms,
             e.max_ms
         );
+    }
+    if let Some(fault) = &s.fault {
+        outln!("the driver faulted and the car was held stopped: {fault}");
     }
     let m = &s.laser_mount;
     outln!(

@@ -1,4 +1,5 @@
-//! `paddock demo`: one episode with the pure-pursuit driver, lap times printed.
+//! `paddock demo`: one episode (pure pursuit by default, or any driver or ONNX model),
+//! lap times printed.
 
 use crate::args::{self, outln};
 use anyhow::{Context, Result};
@@ -8,6 +9,10 @@ use paddock_sim::track::DEFAULT_MAP;
 
 #[derive(Args)]
 pub struct DemoArgs {
+    /// The driver of every car: a name (see `paddock drivers`) or an ONNX model file
+    /// (`model.onnx`; docs/onnx.md).
+    #[arg(long, alias = "policy", default_value = "pure-pursuit")]
+    driver: String,
     /// Map name or directory (default: the default shipped map).
     #[arg(long)]
     map: Option<String>,
@@ -33,9 +38,10 @@ pub struct DemoArgs {
 }
 
 pub fn run(args: &DemoArgs) -> Result<()> {
-    let mut scenario = Scenario::single("pure-pursuit")?;
+    let driver = crate::rollout_cmd::resolve_driver("--driver", &args.driver, None)?;
+    let mut scenario = Scenario::single(&driver)?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
-    let mut car = AgentSpec::with_defaults("pure-pursuit")?;
+    let mut car = AgentSpec::with_defaults(&driver)?;
     car.vehicle = args::vehicle(args.vehicle.as_deref())?;
     scenario.agents = vec![car; args.agents];
     scenario.laps = args.laps;
@@ -61,6 +67,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             "{}",
             serde_json::to_string_pretty(&serde_json::json!({
                 "map": episode.map,
+                "driver": driver,
                 "seed": args.seed,
                 "time_s": episode.time,
                 "agents": agents,
@@ -69,7 +76,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         return Ok(());
     }
     outln!(
-        "map {}, seed {}, {:.2} s simulated",
+        "{driver} on map {}, seed {}, {:.2} s simulated",
         episode.map,
         args.seed,
         episode.time

@@ -2,8 +2,8 @@
 
 mod args;
 mod bridge_cmd;
-mod cluster;
 mod demo;
+mod jobs_cmd;
 mod keys;
 mod maps_generate;
 mod onnx_cmd;
@@ -12,6 +12,7 @@ mod perf_cluster;
 mod plots;
 mod remote;
 mod rollout_cmd;
+mod serve_cmd;
 mod sysid_cmd;
 mod sysid_plots;
 mod sysid_synth;
@@ -55,7 +56,8 @@ enum Command {
     Tune(tune_cmd::TuneArgs),
     /// Measure the simulator's speed on one thread (agent-steps/s, LIDAR rays/s).
     Perf(perf::PerfArgs),
-    /// Drive a demo episode with the pure-pursuit driver and print lap times.
+    /// Drive a demo episode (pure pursuit, or --driver NAME or model.onnx) and print lap
+    /// times.
     Demo(demo::DemoArgs),
     /// Run a batch of seeded episodes of one driver and print per-episode results.
     Rollout(rollout_cmd::RolloutArgs),
@@ -82,15 +84,15 @@ enum Command {
         command: MapsCommand,
     },
     /// Run the broker: clients on --bind, workers on --worker-bind, jobs stored in --state.
-    Broker(cluster::BrokerArgs),
+    Broker(serve_cmd::BrokerArgs),
     /// Run a worker: connect to a broker and run its tasks on all cores.
-    Worker(cluster::WorkerArgs),
+    Worker(serve_cmd::WorkerArgs),
     /// A broker and local workers in one process on loopback; prints the client endpoint.
-    Serve(cluster::ServeArgs),
+    Serve(serve_cmd::ServeArgs),
     /// A broker's workers, queue depth and throughput.
-    Status(cluster::StatusArgs),
+    Status(jobs_cmd::StatusArgs),
     /// The jobs a broker stores: list, status, wait, cancel, result.
-    Jobs(cluster::JobsArgs),
+    Jobs(jobs_cmd::JobsArgs),
     /// Measure rollouts/s through a broker against local runs, and 1 -> 2 worker scaling.
     PerfCluster(perf_cluster::PerfClusterArgs),
     /// CURVE keys for a broker open to the network.
@@ -139,7 +141,10 @@ fn main() {
         );
     }
     let result = client_security(&cli).and_then(|()| match cli.command {
-        Command::Tune(args) => tune_cmd::run(&args),
+        Command::Tune(args) => match &args.endpoint {
+            Some(endpoint) => jobs_cmd::tune_remote(&args, endpoint, args.detach),
+            None => tune_cmd::run(&args),
+        },
         Command::Perf(args) => perf::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Rollout(args) => rollout_cmd::rollout(&args),
@@ -147,11 +152,11 @@ fn main() {
         Command::Drivers { json, verbose } => list_drivers(json, verbose),
         Command::Sysid(args) => sysid_cmd::run(&args),
         Command::Bridge(args) => bridge_cmd::run(&args),
-        Command::Broker(args) => cluster::broker(&args),
-        Command::Worker(args) => cluster::worker(&args),
-        Command::Serve(args) => cluster::serve(&args),
-        Command::Status(args) => cluster::status(&args),
-        Command::Jobs(args) => cluster::jobs(&args),
+        Command::Broker(args) => serve_cmd::broker(&args),
+        Command::Worker(args) => serve_cmd::worker(&args),
+        Command::Serve(args) => serve_cmd::serve(&args),
+        Command::Status(args) => jobs_cmd::status(&args),
+        Command::Jobs(args) => jobs_cmd::jobs(&args),
         Command::PerfCluster(args) => perf_cluster::run(&args),
         Command::Keys { command } => keys::run(&command),
         Command::Health(args) => keys::health(&args),

@@ -8,15 +8,17 @@ use anyhow::Result;
 use clap::Args;
 use paddock_policy::onnx::OnnxPolicy;
 
+use crate::args::{self, outln};
+
 #[derive(Args)]
 pub struct OnnxCheckArgs {
     /// The model file (.onnx).
     model: PathBuf,
     /// Sample inputs to run.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = args::whole::<u64>(1, 100_000))]
     samples: u64,
     /// Seed of the sample inputs.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = args::seed())]
     seed: u64,
 }
 
@@ -46,6 +48,6 @@ pub fn run(args: &OnnxCheckArgs) -> Result<()> {
         "lidar_fov": policy.lidar_fov(),
         "samples": samples,
     });
-    println!("{}", serde_json::to_string_pretty(&doc)?);
+    outln!("{}", serde_json::to_string_pretty(&doc)?);
     Ok(())
 }

@@ -12,8 +12,8 @@ use clap::Args;
 use paddock_rollout::{EpisodeTask, Executor, LocalExecutor, Scenario, task_seed};
 
 use crate::args::{self, outln};
-use crate::cluster::{BrokerThread, wait_for_workers};
 use crate::remote::{Remote, RemoteExecutor};
+use crate::serve_cmd::BrokerThread;
 
 #[derive(Args)]
 pub struct PerfClusterArgs {
@@ -130,7 +130,7 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
     for n in [1usize, 2] {
         let workers = Workers::spawn(n, &broker.back, threads, &maps)?;
         let mut remote = Remote::connect(&broker.front)?;
-        wait_for_workers(&mut remote, n, Duration::from_secs(30))?;
+        remote.wait_for_workers(n, Duration::from_secs(30))?;
         let exec = RemoteExecutor::connect(&broker.front)?;
         // the first batch moves the map to the broker and the workers
         exec.run_batch(warmup, &|_| {});
@@ -194,10 +194,7 @@ fn wait_gone(remote: &Remote) -> Result<()> {
     let mut remote = Remote::connect(&remote.endpoint)?;
     let deadline = Instant::now() + Duration::from_secs(10);
     while Instant::now() < deadline {
-        if crate::cluster::fetch_status(&mut remote)?
-            .workers
-            .is_empty()
-        {
+        if remote.status()?.workers.is_empty() {
             return Ok(());
         }
         std::thread::sleep(Duration::from_millis(100));

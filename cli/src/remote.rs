@@ -1,24 +1,30 @@
-//! Running batches through a broker: [`RemoteExecutor`] implements the same
-//! [`Executor`] trait as the local pool, so `rollout`, `benchmark` and `tune` do not
-//! care where their episodes run, and get the same results bit for bit.
+//! Talking to a broker: [`Remote`] (a connection with the maps this client has read,
+//! requests with timeouts) and [`RemoteExecutor`], the one [`Executor`] that runs batches
+//! through a broker. It implements the same trait as the local pool, so `rollout`,
+//! `benchmark` and `tune` do not care where their episodes run, and get the same results
+//! bit for bit.
 //!
-//! A batch goes out as one `RolloutBatch` (scenarios shared by tasks sent once, maps
-//! named by content hash). When the broker answers NOT_FOUND for a map hash, the
-//! client stores its maps there with `PutMap` and sends the batch again.
+//! A batch goes out as one `RolloutBatch` (each distinct scenario encoded once, maps
+//! named by content hash); its result comes back as one frame per task, decoded here
+//! through `paddock-wire`. When the broker answers NOT_FOUND for a map hash, the client
+//! stores its maps there with `PutMap` and sends the batch again.
 
 use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
-use paddock_broker::client::{Client, ClientError};
+use paddock_broker::client::{Client, ClientError, Received};
 use paddock_libzmq::Curve;
-use paddock_proto::convert::{batch_to_proto, local_map, map_ref, outcome_from_proto};
 use paddock_proto::{Body, ErrorCode, MapBundle};
 use paddock_rollout::{EpisodeResult, EpisodeTask, Executor, RolloutError};
+use paddock_wire::{batch_to_proto, local_map, map_ref, outcome_from_bytes};
 
 /// How long a batch may go without any message from the broker before it is given up.
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(600);
+
+/// How long a single request (status, job queries) waits for its reply.
+pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// A connection to a broker with the map bundles this client has read.
 pub struct Remote {
@@ -53,9 +59,48 @@ impl Remote {
         })
     }
 
-    /// The client, for single requests; its timeout bounds each reply.
-    pub fn client(&mut self) -> &mut Client {
-        &mut self.client
+    /// One request and its reply's body, within [`REQUEST_TIMEOUT`].
+    pub fn request(&mut self, body: Body) -> Result<Body> {
+        self.request_frames(body).map(|r| r.body)
+    }
+
+    /// One request and its whole reply (body and payload frames), within
+    /// [`REQUEST_TIMEOUT`].
+    pub fn request_frames(&mut self, body: Body) -> Result<Received> {
+        let endpoint = self.endpoint.clone();
+        self.client.timeout = REQUEST_TIMEOUT;
+        self.client
+            .request_with(body, Vec::new(), |_| {})
+            .map_err(|e| anyhow!("broker at {endpoint}: {e}"))
+    }
+
+    /// The broker's status.
+    pub fn status(&mut self) -> Result<paddock_proto::BrokerStatus> {
+        match self.request(Body::StatusRequest(paddock_proto::StatusRequest {}))? {
+            Body::BrokerStatus(s) => Ok(s),
+            other => bail!(
+                "the broker answered a status request with {}",
+                paddock_proto::body_name(&other)
+            ),
+        }
+    }
+
+    /// Waits until the broker has at least `n` workers.
+    pub fn wait_for_workers(&mut self, n: usize, within: Duration) -> Result<()> {
+        let deadline = Instant::now() + within;
+        loop {
+            let s = self.status()?;
+            if s.workers.len() >= n {
+                return Ok(());
+            }
+            if Instant::now() > deadline {
+                bail!(
+                    "only {} of {n} workers registered within {within:?}",
+                    s.workers.len()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// The bundle of a map name or directory (read once).
@@ -83,14 +128,14 @@ impl Remote {
         Ok(b)
     }
 
-    /// Sends `request` and waits for its final reply, passing progress and job updates
-    /// to `on_update`; gives up after `idle` without any message for it.
+    /// Sends `request` and waits for its final reply, passing progress to `on_update`;
+    /// gives up after `idle` without any message for it.
     pub fn exchange(
         &mut self,
         request: Body,
         idle: Duration,
         mut on_update: impl FnMut(&Body),
-    ) -> Result<Body, ClientError> {
+    ) -> Result<Received, ClientError> {
         let id = self.client.send(request)?;
         let mut last = Instant::now();
         loop {
@@ -98,19 +143,19 @@ impl Remote {
             if left.is_zero() {
                 return Err(ClientError::Timeout(idle));
             }
-            let (rid, reply) = match self.client.recv(left.min(Duration::from_millis(500))) {
+            let reply = match self.client.recv(left.min(Duration::from_millis(500))) {
                 Ok(x) => x,
                 Err(ClientError::Timeout(_)) => continue,
                 Err(e) => return Err(e),
             };
-            if rid != id {
+            if reply.request_id != id {
                 continue;
             }
             last = Instant::now();
-            match reply {
+            match reply.body {
                 Body::Error(e) => return Err(ClientError::Remote(e)),
-                Body::RolloutProgress(_) => on_update(&reply),
-                other => return Ok(other),
+                Body::RolloutProgress(_) => on_update(&reply.body),
+                _ => return Ok(reply),
             }
         }
     }
@@ -124,10 +169,9 @@ impl Remote {
         if tasks.is_empty() {
             return Ok(Vec::new());
         }
-        let mut maps: Vec<String> = tasks.iter().map(|t| t.scenario.map.clone()).collect();
-        maps.dedup();
         let mut refs = HashMap::new();
-        for m in &maps {
+        for t in tasks {
+            let m = &t.scenario.map;
             if !refs.contains_key(m) {
                 refs.insert(m.clone(), map_ref(&self.bundle(m)?));
             }
@@ -141,20 +185,24 @@ impl Remote {
                 }
             });
             match reply {
-                Ok(Body::RolloutResult(r)) => {
-                    if r.outcomes.len() != tasks.len() {
+                Ok(Received {
+                    body: Body::RolloutResult(r),
+                    payload,
+                    ..
+                }) => {
+                    if r.outcomes as usize != tasks.len() || payload.len() != tasks.len() {
                         bail!(
                             "the broker returned {} outcomes for {} tasks",
-                            r.outcomes.len(),
+                            payload.len(),
                             tasks.len()
                         );
                     }
                     progress(tasks.len());
-                    return Ok(r.outcomes.iter().map(outcome_from_proto).collect());
+                    return Ok(payload.iter().map(|o| outcome_from_bytes(o)).collect());
                 }
                 Ok(other) => bail!(
                     "the broker answered a rollout batch with {}",
-                    paddock_proto::body_name(&other)
+                    paddock_proto::body_name(&other.body)
                 ),
                 Err(e) if e.code() == Some(ErrorCode::NotFound) && !put_done => {
                     // the broker lacks a map: store ours and send the batch again
@@ -211,17 +259,14 @@ impl Executor for RemoteExecutor {
 
     fn parallelism(&self) -> usize {
         let mut remote = self.remote.lock().unwrap_or_else(|e| e.into_inner());
-        match remote
-            .client()
-            .request(Body::StatusRequest(paddock_proto::StatusRequest {}))
-        {
-            Ok(Body::BrokerStatus(s)) => s
+        match remote.status() {
+            Ok(s) => s
                 .workers
                 .iter()
                 .map(|w| w.capacity as usize)
                 .sum::<usize>()
                 .max(1),
-            _ => 1,
+            Err(_) => 1,
         }
     }
 }
@@ -235,7 +280,8 @@ pub fn executor(endpoint: Option<&str>, threads: usize) -> Result<Box<dyn Execut
             let exec = RemoteExecutor::connect(url)?;
             {
                 let mut remote = exec.remote.lock().unwrap_or_else(|e| e.into_inner());
-                crate::cluster::fetch_status(&mut remote)
+                remote
+                    .status()
                     .with_context(|| format!("no broker answering at {url}"))?;
             }
             Ok(Box::new(exec))

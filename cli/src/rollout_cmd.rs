@@ -77,7 +77,8 @@ pub fn run_tasks(
 
 #[derive(Args)]
 pub struct RolloutArgs {
-    /// Driver name (see `paddock drivers`).
+    /// Driver: a name (see `paddock drivers`) or an ONNX model file (`model.onnx`, run
+    /// locally; docs/onnx.md).
     #[arg(long, alias = "policy", default_value = "pure-pursuit")]
     driver: String,
     /// Driver parameters: `name=value,...` or a full comma-separated vector.
@@ -128,19 +129,20 @@ pub struct RolloutArgs {
     video_opts: VideoOptions,
 }
 
-/// A driver name or a `.onnx` model path given on the command line, as the driver name a
-/// scenario carries: a model is checked and registered with this process
-/// (`onnx:<sha256>`). Models do not travel to workers yet, so they run locally only.
-fn resolve_driver(name: &str, endpoint: Option<&str>) -> Result<String> {
-    let spec = paddock_policy::DriverSpec::parse(name)?;
+/// A driver name or a `.onnx` model path given on the command line (`flag` names it in
+/// errors), as the driver name a scenario carries: a model is read, checked and
+/// optimised once for this process and registered (`onnx:<sha256>`). Models do not
+/// travel to workers yet, so they run locally only.
+pub fn resolve_driver(flag: &str, name: &str, endpoint: Option<&str>) -> Result<String> {
+    let spec = paddock_policy::DriverSpec::parse(name).with_context(|| format!("{flag} {name}"))?;
     if endpoint.is_some() && matches!(spec, paddock_policy::DriverSpec::Onnx(_)) {
-        bail!("--driver {name}: ONNX models run locally only for now (no --endpoint)");
+        bail!("{flag} {name}: ONNX models run locally only for now (no --endpoint)");
     }
-    Ok(spec.register()?)
+    spec.register().with_context(|| format!("{flag} {name}"))
 }
 
 pub fn rollout(args: &RolloutArgs) -> Result<()> {
-    let driver = resolve_driver(&args.driver, args.endpoint.as_deref())?;
+    let driver = resolve_driver("--driver", &args.driver, args.endpoint.as_deref())?;
     let params = parse_params(&driver, args.params.as_deref())?;
     let mut scenario = Scenario::single(&driver)?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
@@ -269,7 +271,8 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
 pub struct BenchmarkArgs {
     /// b1 (time trial), b2 (unknown obstacles) or b3 (head to head).
     task: Task,
-    /// The driver under test (see `paddock drivers`).
+    /// The driver under test: a name (see `paddock drivers`) or an ONNX model file
+    /// (`model.onnx`, run locally; docs/onnx.md).
     #[arg(long, alias = "policy", default_value = "pure-pursuit")]
     driver: String,
     /// The driver's parameters: `name=value,...` or a full comma-separated vector.
@@ -279,7 +282,7 @@ pub struct BenchmarkArgs {
     /// vehicle).
     #[arg(long, value_name = "FILE")]
     vehicle: Option<PathBuf>,
-    /// B3's opponent driver (default: pure-pursuit).
+    /// B3's opponent driver: a name or an ONNX model file (default: pure-pursuit).
     #[arg(long)]
     opponent: Option<String>,
     /// The opponent's parameters: `name=value,...` or a full vector.
@@ -331,13 +334,17 @@ pub struct BenchmarkArgs {
 
 pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
-    let mut driver = AgentSpec::with_defaults(&args.driver)?;
-    driver.params = parse_params(&args.driver, args.params.as_deref())?;
+    let endpoint = args.endpoint.as_deref();
+    let name = resolve_driver("--driver", &args.driver, endpoint)?;
+    let mut driver = AgentSpec::with_defaults(&name)?;
+    driver.params = parse_params(&name, args.params.as_deref())?;
     driver.vehicle = vehicle.clone();
     let opponent = match (&args.opponent, args.task) {
         (Some(o), _) => {
-            let mut a = AgentSpec::with_defaults(o)?;
-            a.params = parse_params(o, args.opponent_params.as_deref())?;
+            let name = resolve_driver("--opponent", o, endpoint)?;
+            let mut a = AgentSpec::with_defaults(&name)?;
+            a.params = parse_params(&name, args.opponent_params.as_deref())
+                .context("--opponent-params")?;
             Some(a)
         }
         (None, Task::B3) => Some(AgentSpec::with_defaults("pure-pursuit")?),

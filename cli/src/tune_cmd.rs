@@ -93,10 +93,9 @@ pub fn setup(args: &TuneArgs) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
     Ok((spec, base, circuit))
 }
 
+/// A local tuning run (`paddock tune` without `--endpoint`; with it, `main` hands the
+/// job to the broker through [`crate::jobs_cmd::tune_remote`]).
 pub fn run(args: &TuneArgs) -> Result<()> {
-    if let Some(endpoint) = &args.endpoint {
-        return crate::cluster::tune_remote(args, endpoint, args.detach);
-    }
     let (spec, base, circuit) = setup(args)?;
     let mut job = TuneJob::new(spec, base, circuit.track.length())?;
     let exec = LocalExecutor::new(args.threads)?;

@@ -98,3 +98,297 @@ fn onnx_check_prints_the_library_actions_on_seeded_samples() {
     let (ok, _, err) = paddock(&["onnx-check", "no/such.onnx"]);
     assert!(!ok && err.contains("no/such.onnx: cannot read it"), "{err}");
 }
+
+#[test]
+fn benchmark_runs_models_as_driver_and_opponent_locally() {
+    let dir = tempfile::tempdir().unwrap();
+    let lidar = LidarConfig::default();
+    let centering = write::centering_on_scans(lidar.num_beams, lidar.fov, 0.4, 2.5).bytes();
+    let slower = write::centering_on_scans(lidar.num_beams, lidar.fov, 0.4, 2.0).bytes();
+    let me = write_model(dir.path(), "me.onnx", &centering);
+    let them = write_model(dir.path(), "them.onnx", &slower);
+    let b1 = [
+        "benchmark",
+        "b1",
+        "--driver",
+        &me,
+        "--episodes",
+        "2",
+        "--laps",
+        "1",
+        "--time-limit",
+        "60",
+        "--json",
+    ];
+    let (ok, out, err) = paddock(&b1);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["driver"], format!("onnx:{}", model_hash(&centering)));
+    assert_eq!(v["episodes"], 2);
+    assert!(v["laps_counted"].as_u64().unwrap() >= 1, "{out}");
+    assert!(v["lap_time_mean"].as_f64().unwrap() > 10.0, "{out}");
+    assert_eq!(paddock(&b1).1, out, "same model and flags, same report");
+
+    let (ok, out, err) = paddock(&[
+        "benchmark",
+        "b3",
+        "--driver",
+        &me,
+        "--opponent",
+        &them,
+        "--episodes",
+        "2",
+        "--laps",
+        "1",
+        "--time-limit",
+        "60",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["opponent"], format!("onnx:{}", model_hash(&slower)));
+    assert!(v["win_rate"].as_f64().is_some(), "{out}");
+
+    // a model with a built-in opponent, and a built-in driver against a model
+    let (ok, _, err) = paddock(&[
+        "benchmark",
+        "b3",
+        "--opponent",
+        &me,
+        "--episodes",
+        "2",
+        "--laps",
+        "1",
+        "--time-limit",
+        "30",
+    ]);
+    assert!(ok, "{err}");
+}
+
+#[test]
+fn benchmark_demo_and_bridge_refuse_bad_models_before_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let small = write_model(
+        dir.path(),
+        "m64.onnx",
+        &write::centering_on_scans(64, 4.7, 0.4, 2.0).bytes(),
+    );
+    let junk = write_model(dir.path(), "junk.onnx", b"not a model");
+    let beams = "m64.onnx: input scans has 64 beams, the vehicle's LIDAR 1080";
+    for (args, says) in [
+        (vec!["benchmark", "b1", "--driver", &small], beams),
+        (vec!["benchmark", "b3", "--opponent", &small], beams),
+        (
+            vec!["benchmark", "b2", "--driver", &junk],
+            "junk.onnx: not an ONNX model",
+        ),
+        (vec!["demo", "--driver", &small], beams),
+        (
+            vec!["demo", "--driver", &junk],
+            "junk.onnx: not an ONNX model",
+        ),
+        (vec!["bridge", "drive", "--driver", &small], beams),
+        (
+            vec!["bridge", "drive", "--driver", &junk],
+            "junk.onnx: not an ONNX model",
+        ),
+        (vec!["bridge", "sil", "--opponent", &small], beams),
+    ] {
+        let (ok, _, err) = paddock(&args);
+        assert!(!ok && err.contains(says), "{args:?}: {err}");
+    }
+    let (ok, _, err) = paddock(&["benchmark", "b1", "--driver", &small, "--params", "gain=1"]);
+    assert!(!ok, "{err}");
+    let (ok, _, err) = paddock(&[
+        "benchmark",
+        "b3",
+        "--opponent",
+        &junk,
+        "--endpoint",
+        "tcp://127.0.0.1:9",
+    ]);
+    assert!(!ok && err.contains("--opponent"), "{err}");
+    let lidar = LidarConfig::default();
+    let good = write_model(
+        dir.path(),
+        "good.onnx",
+        &write::centering_on_scans(lidar.num_beams, lidar.fov, 0.4, 2.0).bytes(),
+    );
+    let (ok, _, err) = paddock(&[
+        "benchmark",
+        "b1",
+        "--driver",
+        &good,
+        "--endpoint",
+        "tcp://127.0.0.1:9",
+    ]);
+    assert!(!ok && err.contains("ONNX models run locally only"), "{err}");
+}
+
+#[test]
+fn demo_drives_a_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let lidar = LidarConfig::default();
+    let bytes = write::centering_on_scans(lidar.num_beams, lidar.fov, 0.4, 2.5).bytes();
+    let path = write_model(dir.path(), "centering.onnx", &bytes);
+    let args = [
+        "demo",
+        "--driver",
+        &path,
+        "--laps",
+        "1",
+        "--agents",
+        "2",
+        "--time-limit",
+        "60",
+        "--json",
+    ];
+    let (ok, out, err) = paddock(&args);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["driver"], format!("onnx:{}", model_hash(&bytes)));
+    let agents = v["agents"].as_array().unwrap();
+    assert_eq!(agents.len(), 2);
+    assert!(agents[0]["progress_m"].as_f64().unwrap() > 20.0, "{out}");
+    assert_eq!(paddock(&args).1, out);
+}
+
+/// `paddock onnx-check model.onnx | head` panicked on the closed pipe ("failed printing
+/// to stdout"); it ends quietly with status 0 as every printing command does.
+#[test]
+fn onnx_check_into_a_closed_pipe_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_model(
+        dir.path(),
+        "scalars.onnx",
+        &write::scalars_and_prev([0.5, 2.0]).bytes(),
+    );
+    let out = Command::new("bash")
+        .arg("-c")
+        .arg(format!(
+            "set -o pipefail; '{}' onnx-check '{path}' --samples 2000 | head -n 1",
+            env!("CARGO_BIN_EXE_paddock")
+        ))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{} {err}", out.status);
+    assert!(err.is_empty(), "onnx-check | head said: {err}");
+    let (ok, _, err) = paddock(&["onnx-check", &path, "--samples", "0"]);
+    assert!(!ok && err.contains("0 is out of range"), "{err}");
+}
+
+/// The loop on the command line, as a user runs it: `paddock bridge sil` and `paddock
+/// bridge drive --driver model.onnx` as two processes over ROS 2 (DDS on loopback, a
+/// domain of their own); the SIL car's lap matches the plain rollout of the same model
+/// from the SIL's start within the bridge's transport tolerance (1 %).
+#[test]
+fn bridge_drive_laps_the_sil_car_with_a_model_file_like_a_rollout() {
+    use paddock_rollout::{AgentSpec, Scenario, StartSpec, run_episode};
+    use paddock_sim::track::Circuit;
+    use paddock_sim::world::{Starts, World, WorldConfig};
+    use std::process::Stdio;
+
+    let dir = tempfile::tempdir().unwrap();
+    let lidar = LidarConfig::default();
+    let bytes = write::centering_on_scans(lidar.num_beams, lidar.fov, 0.4, 2.5).bytes();
+    let path = write_model(dir.path(), "centering.onnx", &bytes);
+
+    // the rollout from the SIL's start: its grid at s = 0, LIDAR noise from seed 0
+    let name = paddock_policy::onnx::register(&bytes, "centering.onnx").unwrap();
+    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let world = World::new(circuit, WorldConfig::default()).unwrap();
+    let scenario = Scenario {
+        map: "lakeside".into(),
+        agents: vec![AgentSpec::with_defaults(name).unwrap()],
+        starts: StartSpec::Poses(world.start_poses_for(0, &Starts::Grid { s: 0.0 }).unwrap()),
+        laps: 1,
+        time_limit: 120.0,
+        ..Scenario::single(name).unwrap()
+    };
+    let want = run_episode(&scenario, 0, None).unwrap().agents[0].lap_times[0];
+
+    let exe = env!("CARGO_BIN_EXE_paddock");
+    let domain = "69";
+    let sil = Command::new(exe)
+        .args([
+            "bridge",
+            "sil",
+            "--map",
+            "lakeside",
+            "--rate",
+            "2",
+            "--scan-hz",
+            "100",
+            "--laps",
+            "1",
+            "--seconds",
+            "120",
+            "--wait-for-drive",
+            "--json",
+            "--domain-id",
+            domain,
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let drive = Command::new(exe)
+        .args([
+            "bridge",
+            "drive",
+            "--driver",
+            &path,
+            "--max-speed",
+            "20",
+            "--sensor-timeout",
+            "0.5",
+            "--domain-id",
+            domain,
+            "--seconds",
+            "100",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // the SIL ends by itself after the lap (at most 120 simulated s at 2x)
+    let sil = sil.wait_with_output().unwrap();
+    // SIGINT: the drive node's clean stop (zero speed, its summary)
+    let stopped = Command::new("kill")
+        .args(["-INT", &drive.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(stopped.success());
+    let drive = drive.wait_with_output().unwrap();
+    let (drive_out, drive_err) = (
+        String::from_utf8_lossy(&drive.stdout),
+        String::from_utf8_lossy(&drive.stderr),
+    );
+    assert!(drive.status.success(), "{drive_out}\n{drive_err}");
+    assert!(
+        drive_err.contains("centering.onnx (onnx:") && drive_out.contains("zero speed sent"),
+        "{drive_out}\n{drive_err}"
+    );
+    assert!(
+        !drive_out.contains("faulted"),
+        "the model did not fault: {drive_out}"
+    );
+    assert!(
+        sil.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sil.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&sil.stdout).unwrap();
+    let got = summary["lap_times"][0][0]
+        .as_f64()
+        .unwrap_or_else(|| panic!("the SIL car lapped: {summary}"));
+    assert_eq!(summary["collision_steps"][0], 0, "{summary}");
+    let rel = (got - want).abs() / want;
+    eprintln!("SIL lap {got:.3} s, rollout {want:.3} s; drive node: {drive_out}");
+    assert!(
+        rel < 0.01,
+        "SIL lap {got:.3} s vs rollout {want:.3} s ({:.2} %)",
+        rel * 1e2
+    );
+}

@@ -7,6 +7,10 @@ simulation runs on a Paddock broker's workers (ZeroMQ + protobuf).
 - ``Client(endpoint).rollouts(driver, params, seeds)``, ``submit_tune``, ``jobs``
 - vehicle physics: ``params={...}`` (f1tenth_gym's keys) and ``vehicle="vehicle.yaml"``
   (what ``paddock sysid`` writes) in ``gymnasium.make``; see :mod:`paddock.vehicle`
+- several learner cars: ``gymnasium.make(..., num_agents=2, learners=2)`` (f1tenth_gym's
+  one action row per car), ``paddock.pettingzoo.parallel_env(num_agents=2)`` (PettingZoo)
+- Stable-Baselines3: ``paddock.sb3.VecEnv(num_envs)``; exported policies:
+  :mod:`paddock.onnx` (imported on demand: they need optional packages)
 """
 
 from __future__ import annotations

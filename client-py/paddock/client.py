@@ -189,18 +189,19 @@ class Client:
                 collision_mode=_COLLISION[collision_mode],
                 lidar=pb.Lidar(num_beams=int(num_beams), fov=4.7, max_range=30.0, noise_std=0.01),
                 obstacles=pb.Obstacles(count=0, length=0.4, width=0.4, passage=1.0, start_clearance=4.0),
-                crash_penalty=float(crash_penalty)))
+                crash_penalty=float(crash_penalty)).SerializeToString())
         for i in range(len(p)):
             for seed in s:
                 batch.tasks.append(pb.RolloutTaskSpec(scenario=i, seed=seed % 2**64))
         wait = timeout if timeout is not None else max(self.conn.timeout, 0.05 * len(batch.tasks) * time_limit)
-        reply = self.conn.request("rollout_batch", batch, "rollout_result", timeout=wait,
-                                  on_other=lambda body, msg: None)
-        if len(reply.outcomes) != len(batch.tasks):
+        reply, frames = self.conn.request_frames("rollout_batch", batch, "rollout_result", timeout=wait,
+                                                 on_other=lambda body, msg: None)
+        if reply.outcomes != len(batch.tasks) or len(frames) != len(batch.tasks):
             raise errors.BadMessage(1, "rollout_result.outcomes",
-                                    f"{len(reply.outcomes)} outcomes for {len(batch.tasks)} tasks")
+                                    f"{len(frames)} outcomes for {len(batch.tasks)} tasks")
         episodes = []
-        for k, o in enumerate(reply.outcomes):
+        for k, frame in enumerate(frames):
+            o = pb.TaskOutcome.FromString(frame.bytes)
             if o.WhichOneof("outcome") != "episode":
                 e = o.error
                 err = errors.from_reply(e.code, f"tasks[{k}]" + (f".{e.field}" if e.field else ""), e.message)

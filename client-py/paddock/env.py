@@ -9,7 +9,11 @@ packed bytes (``numpy.frombuffer``), never per-element Python loops.
 
 The learner drives car 0 with ``[steer (rad), speed (m/s)]``; further cars (opponents)
 are driven on the worker by registry drivers. ``terminated`` = car 0 crashed or finished
-its laps; ``truncated`` = the time limit. The reward is computed on the worker from
+its laps; ``truncated`` = the time limit. With ``learners=N`` the learner drives cars
+``0..N`` (f1tenth_gym's one action row per car: ``step(np.array([[steer, speed], ...]))``,
+``scans`` one row per learner car); the episode ends when every learner car is out of the
+race, and ``info`` holds each learner's reward and flag (``paddock.pettingzoo`` gives
+each car to its own agent). The reward is computed on the worker from
 weights (``reward={"progress": 1.0, "collision": -10.0, "lap": 0.0, "time": 0.0}``:
 per metre of progress, per collision, per lap, per second); replace it in Python with a
 wrapper (e.g. ``gymnasium.wrappers.TransformReward``) using ``info["progress"]``.
@@ -41,6 +45,15 @@ from .server import LocalServer
 from .transport import Connection
 
 STATE_SIZE = 7  # x, y, theta, vx, vy, yaw_rate, steer per car
+#: The observation keys of the ONNX observation contract (docs/onnx.md) that a learner
+#: car's own view can give (``slip_angles`` is not sent by the env session): what
+#: :mod:`paddock.sb3` and :mod:`paddock.pettingzoo` observe, so a policy trained on them
+#: exports to a model with exactly these inputs.
+CONTRACT_KEYS = ("scans", "poses_x", "poses_y", "poses_theta", "linear_vels_x",
+                 "linear_vels_y", "ang_vels_z", "steering_angles", "progress", "lap_times",
+                 "lap_counts", "collisions")
+_STATE_COLUMN = {"poses_x": 0, "poses_y": 1, "poses_theta": 2, "linear_vels_x": 3,
+                 "linear_vels_y": 4, "ang_vels_z": 5, "steering_angles": 6}
 OBS_KEYS = ("scans", "poses_x", "poses_y", "poses_theta", "linear_vels_x", "linear_vels_y",
             "ang_vels_z", "collisions", "lap_times", "lap_counts")
 _COLLISION = {"terminate": pb.COLLISION_TERMINATE, "stop": pb.COLLISION_STOP,
@@ -50,19 +63,48 @@ DEFAULT_REWARD = {"progress": 1.0, "collision": -10.0, "lap": 0.0, "time": 0.0}
 
 @dataclass
 class Frame:
-    """One reply's numbers, as arrays over envs (views of the reply's bytes)."""
+    """One reply's numbers, as arrays over envs (views of the reply's bytes). Per-learner
+    arrays have a learner axis (length 1 with one learner)."""
 
-    scans: np.ndarray          # (n, 1, beams) float32
-    states: np.ndarray         # (n, agents, 7) float64
-    rewards: np.ndarray        # (n,) float64
-    terminated: np.ndarray     # (n,) bool
-    truncated: np.ndarray      # (n,) bool
-    progress: np.ndarray       # (n,) float64
-    laps: np.ndarray           # (n,) uint32
-    time: np.ndarray           # (n,) float64
-    collisions: np.ndarray     # (n, agents) float64
-    lap_counts: np.ndarray     # (n, agents) int32
-    lap_times: np.ndarray      # (n, agents) float64
+    scans: np.ndarray               # (n, learners, beams) float32
+    states: np.ndarray              # (n, agents, 7) float64
+    learner_rewards: np.ndarray     # (n, learners) float64
+    learner_terminated: np.ndarray  # (n, learners) bool: that car crashed or finished
+    truncated: np.ndarray           # (n,) bool
+    learner_progress: np.ndarray    # (n, learners) float64
+    learner_laps: np.ndarray        # (n, learners) uint32
+    time: np.ndarray                # (n,) float64
+    collisions: np.ndarray          # (n, agents) float64
+    lap_counts: np.ndarray          # (n, agents) int32
+    lap_times: np.ndarray           # (n, agents) float64
+
+    @property
+    def num_learners(self) -> int:
+        return self.learner_rewards.shape[1]
+
+    @property
+    def rewards(self) -> np.ndarray:
+        """(n,): the learners' rewards summed (car 0's with one learner)."""
+        r = self.learner_rewards
+        return r[:, 0] if r.shape[1] == 1 else r.sum(axis=1)
+
+    @property
+    def terminated(self) -> np.ndarray:
+        """(n,): every learner car is out of the race (crashed or finished)."""
+        t = self.learner_terminated
+        return t[:, 0] if t.shape[1] == 1 else t.all(axis=1)
+
+    @property
+    def progress(self) -> np.ndarray:
+        """(n,) car 0's progress with one learner, else (n, learners)."""
+        p = self.learner_progress
+        return p[:, 0] if p.shape[1] == 1 else p
+
+    @property
+    def laps(self) -> np.ndarray:
+        """(n,) car 0's completed laps with one learner, else (n, learners)."""
+        laps = self.learner_laps
+        return laps[:, 0] if laps.shape[1] == 1 else laps
 
     def obs(self) -> dict[str, np.ndarray]:
         s = self.states
@@ -79,9 +121,48 @@ class Frame:
             "lap_counts": self.lap_counts,
         }
 
+    def car_values(self, key: str, car: int) -> np.ndarray:
+        """(n, width) float32: learner car ``car``'s own value of contract key ``key`` in
+        every env, as an ONNX model's input takes it (``scans`` ``(n, beams)``, a scalar
+        key ``(n, 1)``)."""
+        if key == "scans":
+            v = self.scans[:, car, :]
+        elif key in _STATE_COLUMN:
+            v = self.states[:, car, _STATE_COLUMN[key]][:, None]
+        elif key == "progress":
+            v = self.learner_progress[:, car][:, None]
+        elif key in ("lap_times", "lap_counts", "collisions"):
+            v = getattr(self, key)[:, car][:, None]
+        else:
+            raise KeyError(f"{key!r} is not one of {CONTRACT_KEYS}")
+        return np.array(v, dtype=np.float32)
+
     def info(self) -> dict[str, np.ndarray]:
-        return {"progress": self.progress, "laps": self.laps, "time": self.time,
+        info = {"progress": self.progress, "laps": self.laps, "time": self.time,
                 "steering_angles": self.states[:, :, 6]}
+        if self.num_learners > 1:
+            info["rewards"] = self.learner_rewards
+            info["terminated"] = self.learner_terminated
+        return info
+
+
+def check_contract_keys(keys: Sequence[str]) -> tuple[str, ...]:
+    """``keys`` as a tuple when they are distinct contract keys, else ``ValueError``."""
+    keys = tuple(keys)
+    unknown = [k for k in keys if k not in CONTRACT_KEYS]
+    if not keys or unknown or len(set(keys)) != len(keys):
+        raise ValueError(f"keys = {keys!r}: give distinct observation keys from {CONTRACT_KEYS}")
+    return keys
+
+
+def contract_space(keys: Sequence[str], num_beams: int) -> spaces.Dict:
+    """One car's observation space for contract ``keys``: ``scans`` ``(beams,)`` >= 0
+    (metres: up to the LIDAR's range plus its noise), each scalar key ``(1,)``, all
+    float32."""
+    return spaces.Dict({
+        k: spaces.Box(0.0, np.inf, (num_beams,), np.float32) if k == "scans"
+        else spaces.Box(-np.inf, np.inf, (1,), np.float32)
+        for k in keys})
 
 
 def _frombuffer(data: bytes | memoryview, dtype: str, shape: tuple[int, ...], field: str) -> np.ndarray:
@@ -96,7 +177,8 @@ class EnvSession:
     """An env session of ``num_envs`` copies on one worker, reached through a broker."""
 
     def __init__(self, conn: Connection, num_envs: int, *, map: str = "lakeside",
-                 num_agents: int = 1, opponents: Sequence[str | tuple[str, Sequence[float]]] | None = None,
+                 num_agents: int = 1, learners: int = 1,
+                 opponents: Sequence[str | tuple[str, Sequence[float]]] | None = None,
                  seed: int = 0, num_beams: int = 1080, fov: float = 4.7, max_range: float = 30.0,
                  lidar_noise: float = 0.01, laps: int = 1, time_limit: float = 120.0,
                  collision_mode: str = "terminate", reward: Mapping[str, float] | None = None,
@@ -107,6 +189,9 @@ class EnvSession:
             raise ValueError(f"num_envs = {num_envs!r} must be >= 1")
         if int(num_agents) < 1:
             raise ValueError(f"num_agents = {num_agents!r} must be >= 1")
+        if not 1 <= int(learners) <= int(num_agents):
+            raise ValueError(f"learners = {learners!r} must be in 1..num_agents ({num_agents}): "
+                             f"the learner drives cars 0..learners, opponents the rest")
         if collision_mode not in _COLLISION:
             raise ValueError(f"collision_mode = {collision_mode!r} is not one of {sorted(_COLLISION)}")
         weights = dict(DEFAULT_REWARD)
@@ -114,17 +199,24 @@ class EnvSession:
             if k not in weights:
                 raise ValueError(f"reward key {k!r} is not one of {sorted(weights)}")
             weights[k] = float(v)
+        n_opp = int(num_agents) - int(learners)
         if opponents is None:
-            opponents = ["pure-pursuit"] * (int(num_agents) - 1)
-        elif len(opponents) != int(num_agents) - 1:
+            opponents = ["pure-pursuit"] * n_opp
+        elif len(opponents) != n_opp:
             raise ValueError(f"opponents: {len(opponents)} given for num_agents = {num_agents} "
-                             f"(the learner drives car 0; give num_agents - 1 opponents)")
+                             f"and learners = {learners} (the learner drives cars 0..learners; "
+                             f"give num_agents - learners = {n_opp} opponents)")
         if vehicle_yaml and (params or vehicle is not None):
             raise ValueError("give the vehicle as params= and/or vehicle=, or as vehicle_yaml=, not both")
         vehicle_yaml = vehicle_yaml or _vehicle_yaml(params, vehicle)
         agents = []
         for o in opponents:
             driver, driver_params = (o, ()) if isinstance(o, str) else (o[0], o[1])
+            if str(driver).lower().endswith(".onnx"):
+                raise ValueError(f"opponents: {driver!r}: ONNX models do not travel to the "
+                                 f"server's workers yet; race them with `paddock benchmark b3 "
+                                 f"--opponent {driver}`, or drive them in Python "
+                                 f"(paddock.pettingzoo, learners=)")
             agents.append(pb.AgentSpec(driver=driver, params=[float(p) for p in driver_params],
                                        vehicle_yaml=vehicle_yaml))
         self.conn = conn
@@ -136,11 +228,19 @@ class EnvSession:
             obstacles=pb.Obstacles(count=int(obstacles), length=0.4, width=0.4, passage=1.0,
                                    start_clearance=4.0),
             laps=int(laps), time_limit=float(time_limit), collision_mode=_COLLISION[collision_mode],
-            reward=pb.RewardWeights(**weights), frame_skip=int(frame_skip))
-        opened = conn.request("env_open", msg, "env_opened", timeout=max(conn.timeout, 60.0))
-        self.session_id = opened.session_id
+            reward=pb.RewardWeights(**weights), frame_skip=int(frame_skip),
+            learners=int(learners))
+        header, frames = conn.env(0, pb.ENV_OPEN, msg, timeout=max(conn.timeout, 60.0))
+        opened = pb.EnvOpened.FromString(frames[0].bytes)
+        self.session_id = header.session_id
         self.num_envs = opened.num_envs
         self.num_agents = opened.num_agents
+        # a server from before learner cars answers 0: one learner
+        self.num_learners = opened.num_learners or 1
+        if self.num_learners != int(learners):
+            raise errors.BadMessage(1, "env_opened.num_learners",
+                                    f"the server opened {self.num_learners} learner cars, "
+                                    f"{learners} were asked for (an older server?)")
         self.num_beams = opened.num_beams
         self.action_low = np.array(opened.action_low, dtype=np.float32)
         self.action_high = np.array(opened.action_high, dtype=np.float32)
@@ -149,16 +249,17 @@ class EnvSession:
         self.max_range = float(max_range)
         self.closed = False
 
-    def _frame(self, o: pb.EnvObservation | wire.Observation) -> Frame:
-        n, a, b = self.num_envs, self.num_agents, self.num_beams
+    def _frame(self, frames: list[Any]) -> Frame:
+        o = wire.observation(frames)
+        n, a, b, lrn = self.num_envs, self.num_agents, self.num_beams, self.num_learners
         return Frame(
-            scans=_frombuffer(o.scans, "<f4", (n, 1, b), "scans"),
+            scans=_frombuffer(o.scans, "<f4", (n, lrn, b), "scans"),
             states=_frombuffer(o.states, "<f8", (n, a, STATE_SIZE), "states"),
-            rewards=_frombuffer(o.rewards, "<f8", (n,), "rewards"),
-            terminated=_frombuffer(o.terminated, "u1", (n,), "terminated").astype(bool),
+            learner_rewards=_frombuffer(o.rewards, "<f8", (n, lrn), "rewards"),
+            learner_terminated=_frombuffer(o.terminated, "u1", (n, lrn), "terminated").astype(bool),
             truncated=_frombuffer(o.truncated, "u1", (n,), "truncated").astype(bool),
-            progress=_frombuffer(o.progress, "<f8", (n,), "progress"),
-            laps=_frombuffer(o.laps, "<u4", (n,), "laps"),
+            learner_progress=_frombuffer(o.progress, "<f8", (n, lrn), "progress"),
+            learner_laps=_frombuffer(o.laps, "<u4", (n, lrn), "laps"),
             time=_frombuffer(o.time, "<f8", (n,), "time"),
             collisions=_frombuffer(o.agent_collisions, "u1", (n, a), "agent_collisions").astype(np.float64),
             lap_counts=_frombuffer(o.agent_lap_counts, "<u4", (n, a), "agent_lap_counts").astype(np.int32),
@@ -167,8 +268,7 @@ class EnvSession:
 
     def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,
               poses: np.ndarray | None = None) -> Frame:
-        msg = pb.EnvReset(session_id=self.session_id,
-                          seeds=[int(s) % 2**64 for s in (seeds or [])],
+        msg = pb.EnvReset(seeds=[int(s) % 2**64 for s in (seeds or [])],
                           envs=[int(i) for i in (envs if envs is not None else [])])
         if poses is not None:
             p = np.ascontiguousarray(poses, dtype="<f8")
@@ -177,35 +277,34 @@ class EnvSession:
                 raise ValueError(f"poses: shape {p.shape} does not hold [x, y, theta] for "
                                  f"{count} envs x {self.num_agents} cars")
             msg.poses = p.tobytes()
-        return self._frame(self.conn.request("env_reset", msg, "env_observation"))
+        return self._frame(self.conn.env(self.session_id, pb.ENV_RESET, msg)[1])
 
     def step(self, actions: np.ndarray, reset_envs: Sequence[int] = ()) -> Frame:
         a = np.ascontiguousarray(actions, dtype="<f4")
-        msg = pb.EnvStep(session_id=self.session_id, actions=a.tobytes(),
-                         reset_envs=[int(i) for i in reset_envs])
-        return self._frame(self.conn.request("env_step", msg, "env_observation"))
+        msg = pb.EnvStep(actions=a.tobytes(), reset_envs=[int(i) for i in reset_envs])
+        return self._frame(self.conn.env(self.session_id, pb.ENV_STEP, msg)[1])
 
     def render(self, envs: Sequence[int] | None = None, width: int = DEFAULT_WIDTH) -> np.ndarray:
         """Top-down frames of ``envs`` (default: env 0) as they are now, shape
         (len(envs), height, width, 3) uint8; the session is not changed."""
         envs = [0] if envs is None else [int(i) for i in envs]
-        msg = pb.EnvRender(session_id=self.session_id, envs=envs, width=int(width))
-        image = self.conn.request("env_render", msg, "env_image")
-        return frames_of(image, len(envs))
+        msg = pb.EnvRender(envs=envs, width=int(width))
+        image, rgb = wire.image(self.conn.env(self.session_id, pb.ENV_RENDER, msg)[1])
+        return frames_of(image, rgb, len(envs))
 
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
         try:
-            self.conn.request("env_close", pb.EnvClose(session_id=self.session_id), "env_closed",
-                              timeout=min(self.conn.timeout, 5.0))
+            self.conn.env(self.session_id, pb.ENV_CLOSE, timeout=min(self.conn.timeout, 5.0))
         except errors.PaddockError:
             pass  # the session is gone with its worker or broker: nothing left to close
 
     def spaces(self) -> tuple[spaces.Dict, spaces.Box]:
-        """One env's observation and action spaces."""
-        a, b = self.num_agents, self.num_beams
+        """One env's observation and action spaces: ``[steer, speed]`` with one learner,
+        one such row per learner car with several."""
+        a, b, lrn = self.num_agents, self.num_beams, self.num_learners
         inf = np.inf
 
         def box(shape: tuple[int, ...], low: float = -inf, high: float = inf,
@@ -213,14 +312,18 @@ class EnvSession:
             return spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
 
         obs = spaces.Dict({
-            "scans": box((1, b), 0.0, inf, np.float32),
+            "scans": box((lrn, b), 0.0, inf, np.float32),
             "poses_x": box((a,)), "poses_y": box((a,)), "poses_theta": box((a,)),
             "linear_vels_x": box((a,)), "linear_vels_y": box((a,)), "ang_vels_z": box((a,)),
             "collisions": box((a,), 0.0, 1.0),
             "lap_times": box((a,), 0.0, inf),
             "lap_counts": box((a,), 0, 2**31 - 1, np.int32),
         })
-        act = spaces.Box(low=self.action_low, high=self.action_high, dtype=np.float32)
+        if lrn == 1:
+            act = spaces.Box(low=self.action_low, high=self.action_high, dtype=np.float32)
+        else:
+            act = spaces.Box(low=np.tile(self.action_low, (lrn, 1)),
+                             high=np.tile(self.action_high, (lrn, 1)), dtype=np.float32)
         return obs, act
 
 
@@ -284,8 +387,12 @@ class F110Env(gym.Env):
 
     def _single(self, f: Frame) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         obs = {k: v[0] for k, v in f.obs().items()}
-        info = {"progress": float(f.progress[0]), "laps": int(f.laps[0]), "time": float(f.time[0]),
-                "steering_angles": f.states[0, :, 6]}
+        if f.num_learners == 1:
+            info = {"progress": float(f.progress[0]), "laps": int(f.laps[0]),
+                    "time": float(f.time[0]), "steering_angles": f.states[0, :, 6]}
+        else:
+            info = {k: v[0] for k, v in f.info().items()}
+            info["time"] = float(f.time[0])
         return obs, info
 
     def reset(self, *, seed: int | None = None,
@@ -302,9 +409,12 @@ class F110Env(gym.Env):
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         a = np.asarray(action, dtype=np.float32)
-        if a.size != 2:
-            raise ValueError(f"action must be [steer, speed] (shape (2,)), got shape {a.shape}")
-        f = self.session.step(a.reshape(1, 2))
+        learners = self.session.num_learners
+        if a.size != 2 * learners:
+            want = "[steer, speed] (shape (2,))" if learners == 1 else \
+                f"one [steer, speed] row per learner car (shape ({learners}, 2))"
+            raise ValueError(f"action must be {want}, got shape {a.shape}")
+        f = self.session.step(a.reshape(1, learners, 2))
         obs, info = self._single(f)
         if self.render_mode == "human":
             self.render()
@@ -404,9 +514,12 @@ class F110VectorEnv(VectorEnv):
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         a = np.asarray(actions, dtype=np.float32)
-        if a.shape != (self.num_envs, 2):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 2) "
-                             f"(num_envs x [steer, speed]), got {a.shape}")
+        learners = self.session.num_learners
+        want = (self.num_envs, 2) if learners == 1 else (self.num_envs, learners, 2)
+        if a.shape != want:
+            what = "num_envs x [steer, speed]" if learners == 1 else \
+                "num_envs x learners x [steer, speed]"
+            raise ValueError(f"actions must have shape {want} ({what}), got {a.shape}")
         f = self.session.step(a, reset_envs=np.flatnonzero(self._autoreset).tolist())
         self._autoreset = f.terminated | f.truncated
         return f.obs(), f.rewards, f.terminated, f.truncated, f.info()

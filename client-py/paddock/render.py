@@ -22,14 +22,15 @@ RENDER_MODES = ["rgb_array", "human"]
 DEFAULT_WIDTH = 800  # pixels; 160..2048; the height follows the track's shape
 
 
-def frames_of(image: pb.EnvImage, count: int) -> np.ndarray:
-    """The ``count`` frames of an ``EnvImage`` reply, shape (count, height, width, 3) uint8."""
+def frames_of(image: pb.EnvImage, rgb: memoryview | bytes, count: int) -> np.ndarray:
+    """The ``count`` frames of an image reply (its ``EnvImage`` and pixel frame), shape
+    (count, height, width, 3) uint8."""
     shape = (count, int(image.height), int(image.width), 3)
     want = count * image.height * image.width * 3
-    if len(image.rgb) != want:
+    if len(rgb) != want:
         raise errors.BadMessage(1, "env_image.rgb",
-                                f"rgb has {len(image.rgb)} bytes, expected {want} for shape {shape}")
-    return np.frombuffer(image.rgb, dtype=np.uint8).reshape(shape)
+                                f"rgb has {len(rgb)} bytes, expected {want} for shape {shape}")
+    return np.frombuffer(rgb, dtype=np.uint8).reshape(shape)
 
 
 class Window:

@@ -1,9 +1,12 @@
 """One DEALER connection to a broker: request/reply with ids, timeouts, map uploads.
 
-Every message is one ``paddock.v1.Envelope``. A request carries a fresh request id; the
-reply with that id is awaited for at most ``timeout`` seconds (never forever), replies to
-older requests (answered after their caller gave up) are dropped, and an error reply is
-raised as the matching :mod:`paddock.errors` exception.
+Every message is a ``paddock.v1.Envelope`` frame (the routing header) and the payload
+frames its body announces (an env request's message, an observation's scans, a rollout
+result's outcomes). A request carries a fresh request id; the reply with that id is awaited
+for at most ``timeout`` seconds (never forever), replies to older requests (answered after
+their caller gave up) are dropped, and an error reply is raised as the matching
+:mod:`paddock.errors` exception. Payload frames are received without a copy out of
+ZeroMQ's messages.
 """
 
 from __future__ import annotations
@@ -16,11 +19,11 @@ from collections.abc import Callable, Iterable
 import zmq
 from google.protobuf.message import DecodeError, Message
 
-from . import errors, wire
+from . import errors
 from ._proto import paddock_pb2 as pb
 from .maps import find_map_dir, read_bundle, server_map
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 DEFAULT_TIMEOUT = 30.0
 
 
@@ -163,24 +166,23 @@ class Connection:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def send(self, field: str, msg: Message) -> int:
-        """Send one request; return its id."""
+    def send(self, field: str, msg: Message, payload: Iterable[bytes] = ()) -> int:
+        """Send one request (and its payload frames); return its id."""
         if self._sock is None:
             raise errors.PaddockError(f"connection to {self.endpoint} is closed")
         rid = next(self._ids)
         env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid)
         getattr(env, field).CopyFrom(msg)
         try:
-            self._sock.send(env.SerializeToString())  # small: a copy is cheaper than zero-copy
+            # small frames: a copy is cheaper than zero-copy
+            self._sock.send_multipart([env.SerializeToString(), *payload])
         except zmq.Again as e:
             raise errors.BrokerUnavailable(self.endpoint, self.timeout, field) from e
         return rid
 
     def receive(self, rid: int, what: str,
-                timeout: float | None = None) -> tuple[str, Message | wire.Observation]:
-        """The next reply to request ``rid`` as (body name, message); an env observation
-        comes as a :class:`paddock.wire.Observation` over the received frame (the same
-        field names as the protobuf message, bytes fields as views)."""
+                timeout: float | None = None) -> tuple[str, Message, list[zmq.Frame]]:
+        """The next reply to request ``rid`` as (body name, message, payload frames)."""
         assert self._sock is not None
         limit = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + limit
@@ -192,16 +194,11 @@ class Connection:
                 self.close()
                 self._connect()
                 raise errors.BrokerUnavailable(self.endpoint, limit, what)
-            # no copy out of ZeroMQ's message: an env observation's arrays are views of it
-            buf = self._sock.recv(copy=False).buffer
-            fast = wire.env_observation(buf) if len(buf) >= wire.VIEW_MIN_BYTES else None
-            if fast is not None:
-                if fast[1] != rid:
-                    continue  # the reply to a request its caller gave up on
-                return "env_observation", fast[2]
+            # no copy out of ZeroMQ's messages: an observation's scans are a view of one
+            frames = self._sock.recv_multipart(copy=False)
             env = pb.Envelope()
             try:
-                env.ParseFromString(buf)
+                env.ParseFromString(frames[0].buffer)
             except DecodeError:
                 continue
             if env.request_id != rid:
@@ -212,7 +209,10 @@ class Connection:
             msg = getattr(env, body)
             if body == "error":
                 raise errors.from_reply(msg.code, msg.field, msg.message)
-            return body, msg
+            if body == "env_reply" and msg.HasField("error"):
+                e = msg.error
+                raise errors.from_reply(e.code, e.field, e.message)
+            return body, msg, frames[1:]
 
     def _wait(self, timeout_ms: int) -> bool:
         """Whether a reply is waiting within ``timeout_ms``; raises
@@ -245,20 +245,38 @@ class Connection:
 
     def request(self, field: str, msg: Message, expect: str | Iterable[str],
                 timeout: float | None = None,
-                on_other: Callable[[str, Message], None] | None = None) -> Message | wire.Observation:
+                on_other: Callable[[str, Message], None] | None = None) -> Message:
         """Send ``msg`` as body ``field`` and return the reply whose body is ``expect``;
         other bodies with the same id (progress) go to ``on_other``."""
+        return self.request_frames(field, msg, expect, timeout, on_other)[0]
+
+    def request_frames(self, field: str, msg: Message, expect: str | Iterable[str],
+                       timeout: float | None = None,
+                       on_other: Callable[[str, Message], None] | None = None,
+                       payload: Iterable[bytes] = ()) -> tuple[Message, list[zmq.Frame]]:
+        """:meth:`request` with payload frames both ways: the reply's message and frames."""
         wanted = {expect} if isinstance(expect, str) else set(expect)
         with self._lock:
-            rid = self.send(field, msg)
+            rid = self.send(field, msg, payload)
             while True:
-                body, reply = self.receive(rid, field, timeout)
+                body, reply, frames = self.receive(rid, field, timeout)
                 if body in wanted:
-                    return reply
+                    return reply, frames
                 if on_other is not None:
                     on_other(body, reply)
                     continue
                 raise errors.UnknownType(3, "body", f"unexpected reply {body} to {field}")
+
+    def env(self, session_id: int, op: int, msg: Message | None = None,
+            timeout: float | None = None) -> tuple[pb.EnvReply, list[zmq.Frame]]:
+        """A request on env session ``session_id`` (0 to open one): ``op`` (``pb.ENV_OPEN``,
+        ...) and its message as the payload frame. The reply's header (with the session id)
+        and payload frames; a refusal is raised."""
+        header = pb.EnvRequest(session_id=session_id, op=op)
+        payload = [] if msg is None else [msg.SerializeToString()]
+        reply, frames = self.request_frames("env_request", header, "env_reply", timeout,
+                                            payload=payload)
+        return reply, frames
 
     def map_ref(self, map: str) -> pb.MapRef:
         """The reference of map ``map``: a map on this machine (a directory, a map YAML,

@@ -148,11 +148,12 @@ def test_unknown_map_and_driver(endpoint: str) -> None:
     # a map hash the broker never received
     with Connection(endpoint, timeout=10) as c:
         with pytest.raises(errors.NotFound) as e:
-            c.request("env_open", pb.EnvOpen(map=pb.MapRef(name="x", hash="ab" * 32), num_envs=1,
-                                             laps=1, time_limit=10, frame_skip=1), "env_opened")
-        assert "hash" in e.value.field
-        with pytest.raises(errors.NotFound):
-            c.request("env_step", pb.EnvStep(session_id=987654), "env_observation")
+            c.env(0, pb.ENV_OPEN, pb.EnvOpen(map=pb.MapRef(name="x", hash="ab" * 32), num_envs=1,
+                                             laps=1, time_limit=10, frame_skip=1))
+        assert e.value.field == "env_open.map.hash"
+        with pytest.raises(errors.NotFound) as e:
+            c.env(987654, pb.ENV_STEP, pb.EnvStep())
+        assert e.value.field == "env_request.session_id"
 
 
 def test_broker_down_raises_naming_the_endpoint() -> None:

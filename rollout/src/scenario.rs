@@ -119,6 +119,9 @@ impl Scenario {
                 .map_err(|source| RolloutError::Driver { agent: i, source })?;
             paddock_policy::check_params(info.name, &info.params, &a.params)
                 .map_err(|source| RolloutError::Driver { agent: i, source })?;
+            // an ONNX model's scan input must fit the scenario's LIDAR
+            paddock_policy::check_lidar(&a.driver, &self.lidar)
+                .map_err(|source| RolloutError::Driver { agent: i, source })?;
             if let Err(e) = a.vehicle.validate() {
                 return bad(
                     &format!("agents[{i}].vehicle"),

@@ -14,30 +14,64 @@
 use paddock_libzmq as _;
 use std::time::{Duration, Instant};
 
-use paddock_proto::{Body, EnvOpen, EnvReset, EnvStep, Lidar, PutMap, decode, encode, pack_f32};
+use paddock_proto::{
+    Body, EnvOp, EnvOpen, EnvReply, EnvRequest, EnvReset, EnvStep, Lidar, MapRef, PutMap, decode,
+    encode, pack_f32,
+};
 use paddock_sim::track::Circuit;
+use prost::Message;
 
-fn request(sock: &zmq::Socket, id: &mut u64, body: Body) -> Result<Body, String> {
+/// Sends a request (and its payload frame) and waits for its reply: (body, payload).
+fn request(
+    sock: &zmq::Socket,
+    id: &mut u64,
+    body: Body,
+    payload: Option<Vec<u8>>,
+) -> Result<(Body, Vec<Vec<u8>>), String> {
     *id += 1;
-    sock.send(encode(*id, body), 0)
+    let mut frames = vec![encode(*id, body)];
+    frames.extend(payload);
+    sock.send_multipart(frames, 0)
         .map_err(|e| format!("send: {e}"))?;
     loop {
-        let frame = sock
-            .recv_bytes(0)
+        let mut parts = sock
+            .recv_multipart(0)
             .map_err(|e| format!("no reply within the timeout: {e}"))?;
-        let (rid, body) = decode(&frame).map_err(|(_, e)| e.to_string())?;
+        let payload = parts.split_off(1);
+        let (rid, body) = decode(&parts[0]).map_err(|(_, e)| e.to_string())?;
         if rid != *id {
             continue;
         }
         return match body {
-            Body::Error(e) => Err(format!(
+            Body::Error(e) | Body::EnvReply(EnvReply { error: Some(e), .. }) => Err(format!(
                 "{} [{}]: {}",
                 paddock_proto::code_name(e.code),
                 e.field,
                 e.message
             )),
-            b => Ok(b),
+            b => Ok((b, payload)),
         };
+    }
+}
+
+/// An env request on session `sid` (0: open one).
+fn env(
+    sock: &zmq::Socket,
+    id: &mut u64,
+    sid: u64,
+    op: EnvOp,
+    payload: Option<Vec<u8>>,
+) -> Result<(EnvReply, Vec<Vec<u8>>), String> {
+    let header = Body::EnvRequest(EnvRequest {
+        session_id: sid,
+        op: op as i32,
+    });
+    match request(sock, id, header, payload)? {
+        (Body::EnvReply(r), frames) => Ok((r, frames)),
+        (other, _) => Err(format!(
+            "an env request answered with {}",
+            paddock_proto::body_name(&other)
+        )),
     }
 }
 
@@ -67,79 +101,66 @@ fn main() -> Result<(), String> {
         .dir
         .clone();
     let bundle = paddock_proto::read_map_dir(&dir, "lakeside").map_err(|e| e.to_string())?;
-    let map = paddock_proto::convert::map_ref(&bundle);
+    let map = MapRef {
+        name: bundle.name.clone(),
+        hash: bundle.hash.clone(),
+    };
     request(
         &sock,
         &mut id,
         Body::PutMap(PutMap {
             bundle: Some(bundle),
         }),
+        None,
     )?;
     println!("| envs | beams | steps | p50 µs | p99 µs | mean µs | env-steps/s |");
     println!("|---:|---:|---:|---:|---:|---:|---:|");
     for (num_envs, beams) in [(1u32, 1080u32), (64, 1080), (1, 1), (64, 1)] {
-        let opened = request(
-            &sock,
-            &mut id,
-            Body::EnvOpen(EnvOpen {
-                map: Some(map.clone()),
-                num_envs,
-                seed: 1,
-                lidar: Some(Lidar {
-                    num_beams: beams,
-                    fov: 4.7,
-                    max_range: 30.0,
-                    noise_std: 0.01,
-                    mount_offset: 0.0,
-                }),
-                laps: 100,
-                time_limit: 36_000.0,
-                frame_skip: 1,
-                ..Default::default()
+        let open = EnvOpen {
+            map: Some(map.clone()),
+            num_envs,
+            seed: 1,
+            lidar: Some(Lidar {
+                num_beams: beams,
+                fov: 4.7,
+                max_range: 30.0,
+                noise_std: 0.01,
+                mount_offset: 0.0,
             }),
-        )?;
-        let Body::EnvOpened(o) = opened else {
-            return Err(format!(
-                "env_open answered with {}",
-                paddock_proto::body_name(&opened)
-            ));
+            laps: 100,
+            time_limit: 36_000.0,
+            frame_skip: 1,
+            ..Default::default()
         };
-        let sid = o.session_id;
-        request(
+        let (opened, _) = env(
             &sock,
             &mut id,
-            Body::EnvReset(EnvReset {
-                session_id: sid,
-                ..Default::default()
-            }),
+            0,
+            EnvOp::EnvOpen,
+            Some(open.encode_to_vec()),
         )?;
+        let sid = opened.session_id;
+        let reset = EnvReset::default().encode_to_vec();
+        env(&sock, &mut id, sid, EnvOp::EnvReset, Some(reset))?;
         // standing cars: every step still runs the dynamics and the scan, and none crashes
-        let actions = pack_f32(
-            &(0..num_envs)
-                .flat_map(|_| [0.0f32, 0.0])
-                .collect::<Vec<_>>(),
-        );
+        let step = EnvStep {
+            actions: pack_f32(
+                &(0..num_envs)
+                    .flat_map(|_| [0.0f32, 0.0])
+                    .collect::<Vec<_>>(),
+            ),
+            reset_envs: vec![],
+        }
+        .encode_to_vec();
         let mut times = Vec::with_capacity(steps);
         let t0 = Instant::now();
         for _ in 0..steps {
             let t = Instant::now();
-            request(
-                &sock,
-                &mut id,
-                Body::EnvStep(EnvStep {
-                    session_id: sid,
-                    actions: actions.clone(),
-                    reset_envs: vec![],
-                }),
-            )?;
+            env(&sock, &mut id, sid, EnvOp::EnvStep, Some(step.clone()))?;
             times.push(t.elapsed());
         }
         let total = t0.elapsed().as_secs_f64();
-        request(
-            &sock,
-            &mut id,
-            Body::EnvClose(paddock_proto::EnvClose { session_id: sid }),
-        )?;
+        env(&sock, &mut id, sid, EnvOp::EnvClose, None)?;
         times.sort();
         println!(
             "| {num_envs} | {beams} | {steps} | {:.0} | {:.0} | {:.0} | {:.0} |",

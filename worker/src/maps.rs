@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use paddock_proto::{Error, ErrorCode, MapBundle, check_bundle, error};
+use paddock_proto::{Error, ErrorCode, MapBundle, error};
 
 /// A directory of maps by content hash.
 #[derive(Debug, Clone)]
@@ -89,9 +89,10 @@ impl MapCache {
         out
     }
 
-    /// Checks and stores a bundle; returns its directory.
+    /// Checks (form and what its files say: the image a bare name of the bundle, its
+    /// size capped) and stores a bundle; returns its directory.
     pub fn store(&self, bundle: &MapBundle) -> Result<PathBuf, Error> {
-        check_bundle(bundle)?;
+        paddock_wire::check_map_bundle(bundle)?;
         if let Some(dir) = self.get(&bundle.hash) {
             return Ok(dir);
         }

@@ -52,8 +52,9 @@ impl Renderers {
             .ok_or_else(|| error(ErrorCode::Internal, "env_render", "no renderer kept"))
     }
 
-    /// The frames `r` asks for, of session `env`.
-    pub fn render(&mut self, env: &VecEnv, r: &EnvRender) -> Result<EnvImage, Error> {
+    /// The frames `r` asks for, of session `env`: the image's size and its pixels (the
+    /// payload frame after it).
+    pub fn render(&mut self, env: &VecEnv, r: &EnvRender) -> Result<(EnvImage, Vec<u8>), Error> {
         let n = env.num_envs();
         let envs: Vec<usize> = if r.envs.is_empty() {
             vec![0]
@@ -104,19 +105,21 @@ impl Renderers {
                 .map_err(|e| error(ErrorCode::Internal, "env_render", e.to_string()))?;
             rgb.extend_from_slice(&renderer.render(&scene).rgb);
         }
-        Ok(EnvImage {
-            session_id: r.session_id,
-            width: renderer.width(),
-            height: renderer.height(),
+        Ok((
+            EnvImage {
+                width: renderer.width(),
+                height: renderer.height(),
+            },
             rgb,
-        })
+        ))
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use paddock_proto::{Body, EnvOpen, EnvStep, Lidar, MapRef};
+    use paddock_proto::{EnvOp, EnvOpen, EnvStep, Lidar, MapRef};
     use paddock_sim::track::Circuit;
+    use prost::Message;
 
     use crate::sessions::Sessions;
 
@@ -125,10 +128,10 @@ mod tests {
     fn lakeside() -> MapRef {
         let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
         let b = paddock_proto::read_map_dir(&dir, "lakeside").unwrap();
-        paddock_proto::convert::map_ref(&b)
+        paddock_wire::map_ref(&b)
     }
 
-    fn open(s: &mut Sessions, num_envs: u32) -> u64 {
+    fn open(s: &mut Sessions, id: u64, num_envs: u32) {
         let o = EnvOpen {
             map: Some(lakeside()),
             num_envs,
@@ -145,26 +148,22 @@ mod tests {
             frame_skip: 1,
             ..Default::default()
         };
-        match s.handle(1, Body::EnvOpen(o)) {
-            Some(Body::EnvOpened(o)) => o.session_id,
-            other => panic!("{other:?}"),
-        }
+        let r = s.handle(id, EnvOp::EnvOpen as i32, &o.encode_to_vec());
+        assert!(r.header.error.is_none(), "{:?}", r.header.error);
     }
 
-    fn render(s: &mut Sessions, r: EnvRender) -> Result<EnvImage, Error> {
-        match s.handle(2, Body::EnvRender(r)) {
-            Some(Body::EnvImage(i)) => Ok(i),
-            Some(Body::Error(e)) => Err(e),
-            other => panic!("{other:?}"),
+    /// (width, height, pixels) of a render, or its error.
+    fn render(s: &mut Sessions, id: u64, r: EnvRender) -> Result<(u32, u32, Vec<u8>), Error> {
+        let reply = s.handle(id, EnvOp::EnvRender as i32, &r.encode_to_vec());
+        if let Some(e) = reply.header.error {
+            return Err(e);
         }
+        let image = EnvImage::decode(reply.frames[0].as_slice()).unwrap();
+        Ok((image.width, image.height, reply.frames[1].clone()))
     }
 
-    #[test]
-    fn frames_of_the_asked_envs_leave_the_session_unchanged() {
-        let mut s = Sessions::new();
-        let id = open(&mut s, 3);
+    fn step(s: &mut Sessions, id: u64) -> Vec<Vec<u8>> {
         let step = EnvStep {
-            session_id: id,
             actions: [0.0f32, 2.0]
                 .repeat(3)
                 .iter()
@@ -172,56 +171,50 @@ mod tests {
                 .collect(),
             reset_envs: vec![],
         };
+        s.handle(id, EnvOp::EnvStep as i32, &step.encode_to_vec())
+            .frames
+    }
+
+    #[test]
+    fn frames_of_the_asked_envs_leave_the_session_unchanged() {
+        let mut s = Sessions::new();
+        let id = 11;
+        open(&mut s, id, 3);
         for _ in 0..20 {
-            s.handle(3, Body::EnvStep(step.clone()));
+            step(&mut s, id);
         }
-        let ask = |envs: Vec<u32>, width| EnvRender {
-            session_id: id,
-            envs,
-            width,
-        };
-        let one = render(&mut s, ask(vec![], 0)).unwrap();
-        assert_eq!((one.session_id, one.width), (id, DEFAULT_WIDTH));
-        assert_eq!(one.rgb.len(), (one.width * one.height * 3) as usize);
-        let again = render(&mut s, ask(vec![0], 0)).unwrap();
+        let ask = |envs: Vec<u32>, width| EnvRender { envs, width };
+        let one = render(&mut s, id, ask(vec![], 0)).unwrap();
+        assert_eq!(one.0, DEFAULT_WIDTH);
+        assert_eq!(one.2.len(), (one.0 * one.1 * 3) as usize);
+        let again = render(&mut s, id, ask(vec![0], 0)).unwrap();
         assert_eq!(one, again, "rendering reads the session only");
-        let three = render(&mut s, ask(vec![2, 0, 1], 320)).unwrap();
-        assert_eq!(three.width, 320);
-        let frame = (three.width * three.height * 3) as usize;
-        assert_eq!(three.rgb.len(), 3 * frame);
+        let three = render(&mut s, id, ask(vec![2, 0, 1], 320)).unwrap();
+        assert_eq!(three.0, 320);
+        let frame = (three.0 * three.1 * 3) as usize;
+        assert_eq!(three.2.len(), 3 * frame);
         // the copies started in different places: different pictures
-        assert_ne!(three.rgb[..frame], three.rgb[frame..2 * frame]);
-        let env0 = render(&mut s, ask(vec![0], 320)).unwrap();
-        assert_eq!(env0.rgb, three.rgb[frame..2 * frame]);
+        assert_ne!(three.2[..frame], three.2[frame..2 * frame]);
+        let env0 = render(&mut s, id, ask(vec![0], 320)).unwrap();
+        assert_eq!(env0.2, three.2[frame..2 * frame]);
         // the next step is the step it would have been without the renders
         let mut t = Sessions::new();
-        let tid = open(&mut t, 3);
-        let tstep = EnvStep {
-            session_id: tid,
-            ..step.clone()
-        };
+        open(&mut t, id, 3);
         for _ in 0..20 {
-            t.handle(3, Body::EnvStep(tstep.clone()));
+            step(&mut t, id);
         }
-        match (
-            s.handle(4, Body::EnvStep(step)),
-            t.handle(4, Body::EnvStep(tstep)),
-        ) {
-            (Some(Body::EnvObservation(a)), Some(Body::EnvObservation(b))) => {
-                assert_eq!(a.states, b.states)
-            }
-            other => panic!("{other:?}"),
-        }
+        assert_eq!(step(&mut s, id), step(&mut t, id));
     }
 
     #[test]
     fn bad_renders_name_the_field() {
         let mut s = Sessions::new();
-        let id = open(&mut s, 2);
+        let id = 12;
+        open(&mut s, id, 2);
         let e = render(
             &mut s,
+            id,
             EnvRender {
-                session_id: id,
                 envs: vec![2],
                 width: 0,
             },
@@ -231,8 +224,8 @@ mod tests {
         assert!(e.message.contains("2 envs"), "{}", e.message);
         let e = render(
             &mut s,
+            id,
             EnvRender {
-                session_id: id,
                 envs: vec![1, 1],
                 width: 0,
             },
@@ -241,8 +234,8 @@ mod tests {
         assert_eq!(e.field, "env_render.envs[1]");
         let e = render(
             &mut s,
+            id,
             EnvRender {
-                session_id: id,
                 envs: vec![],
                 width: 9000,
             },
@@ -252,8 +245,8 @@ mod tests {
         assert!(e.message.contains("9000"), "{}", e.message);
         let e = render(
             &mut s,
+            id + 1,
             EnvRender {
-                session_id: id + 1,
                 envs: vec![],
                 width: 0,
             },

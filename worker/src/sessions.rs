@@ -1,15 +1,22 @@
 //! Interactive env sessions hosted by this worker.
 //!
-//! The worker's message loop hands every `EnvOpen`, `EnvReset`, `EnvStep`, `EnvRender`
-//! and `EnvClose` to [`Sessions::handle`] and sends back the body it returns with the same
-//! request id. A session is one [`VecEnv`] (N copies of one environment); its replies are
-//! [`EnvObservation`]s whose bulk numbers are packed little-endian bytes, so a Python
-//! learner reads them with `numpy.frombuffer`.
+//! The worker's message loop hands every env request (`EnvRequest{session_id, op}` and
+//! its payload frame) to [`Sessions::handle`] and sends back the [`EnvReply`] header and
+//! payload frames it returns, under the same request id. A session is one [`VecEnv`] (N
+//! copies of one environment) under the id the broker gave it at open; its observations
+//! travel as two frames: the small `EnvObservation` message and the scans, packed once
+//! into the frame that goes on the socket, so a Python learner reads them with
+//! `numpy.frombuffer` and nobody copies them on the way.
 //!
 //! Why it looks like this:
-//! - Protobuf stops here: requests become [`EnvConfig`] and slices, checked field by
-//!   field; an error names the field as the client sent it (`env_step.actions`, with the
-//!   byte count expected and got) and leaves the session as it was.
+//! - Protobuf stops here: requests become an [`EnvConfig`] and slices through
+//!   [`paddock_wire::env`], checked field by field; an error names the field as the
+//!   client sent it (`env_step.actions`, with the byte count expected and got) and
+//!   leaves the session as it was.
+//! - Every reply carries a fingerprint of its payload frames
+//!   ([`paddock_proto::fingerprint`]) and says whether its request was a restart point
+//!   (a reset of every env with its own seed): the broker keeps both to rebuild the
+//!   session on another worker if this one dies, without decoding anything.
 //! - Maps are named by content hash. The hash is looked up in the worker's map cache
 //!   (`set_map_cache`); failing that, the map the name resolves to on this machine is
 //!   used when its files have that very hash (a `paddock serve` worker beside the
@@ -23,19 +30,15 @@ use std::collections::HashMap;
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 
-use paddock_proto::convert::with_prefix;
 use paddock_proto::{
-    Body, EnvClosed, EnvObservation, EnvOpen, EnvOpened, EnvReset, EnvStep, Error, ErrorCode,
-    body_name, error, pack_f32, pack_f64, pack_u32, unpack_f64,
+    EnvOp, EnvOpen, EnvRender, EnvReply, EnvReset, EnvStep, Error, ErrorCode, error,
 };
-use paddock_rollout::env::{EnvConfig, EnvFrame, RewardWeights, VecEnv};
-use paddock_rollout::{AgentSpec, RolloutError};
-use paddock_sim::collision::CollisionMode;
-use paddock_sim::geometry::Pose;
-use paddock_sim::lidar::LidarConfig;
+use paddock_rollout::RolloutError;
+use paddock_rollout::env::VecEnv;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::track::Circuit;
-use paddock_sim::world::{ObstacleConfig, WorldError};
+use paddock_wire::with_prefix;
+use prost::Message;
 
 use crate::maps::{MapCache, is_hash};
 use crate::render::Renderers;
@@ -47,7 +50,6 @@ pub const MAX_SESSIONS: usize = 256;
 #[derive(Debug, Default)]
 pub struct Sessions {
     open: HashMap<u64, VecEnv>,
-    next_id: u64,
     maps: Option<MapCache>,
     /// Map name -> (hash of its local files, directory), computed once per name.
     local: HashMap<String, (String, PathBuf)>,
@@ -56,8 +58,25 @@ pub struct Sessions {
     vehicle: Option<VehicleParams>,
 }
 
+/// A reply: its header and payload frames.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reply {
+    pub header: EnvReply,
+    pub frames: Vec<Vec<u8>>,
+}
+
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> Error {
     error(ErrorCode::InvalidArgument, field, message)
+}
+
+fn decode<M: Message + Default>(payload: &[u8], what: &str) -> Result<M, Error> {
+    M::decode(payload).map_err(|e| {
+        error(
+            ErrorCode::BadMessage,
+            what,
+            format!("{what}: {} bytes do not decode: {e}", payload.len()),
+        )
+    })
 }
 
 impl Sessions {
@@ -75,58 +94,66 @@ impl Sessions {
         self.vehicle = (vehicle != VehicleParams::default()).then_some(vehicle);
     }
 
-    /// The vehicle of a request's YAML, or this worker's vehicle for the default one.
-    fn vehicle(&self, yaml: &str, prefix: &str) -> Result<VehicleParams, Error> {
-        let v = vehicle_from_yaml(yaml, prefix)?;
-        match &self.vehicle {
-            Some(mine) if v == VehicleParams::default() => Ok(mine.clone()),
-            _ => Ok(v),
-        }
-    }
-
     /// How many sessions are open.
     pub fn count(&self) -> usize {
         self.open.len()
     }
 
-    /// The reply to one env message (`None`: no reply).
-    pub fn handle(&mut self, request_id: u64, body: Body) -> Option<Body> {
-        let _ = request_id;
-        let name = body_name(&body);
-        let reply = match body {
-            Body::EnvOpen(o) => self.open(&o).map(Body::EnvOpened),
-            Body::EnvReset(r) => self.reset(&r).map(Body::EnvObservation),
-            Body::EnvStep(s) => self.step(&s).map(Body::EnvObservation),
-            Body::EnvRender(r) => match self.open.get(&r.session_id) {
-                Some(env) => {
-                    std::panic::catch_unwind(AssertUnwindSafe(|| self.renderers.render(env, &r)))
-                        .unwrap_or_else(|_| {
-                            Err(error(
-                                ErrorCode::Internal,
-                                "env_render",
-                                "rendering failed (a bug); the session is unchanged",
-                            ))
-                        })
-                        .map(Body::EnvImage)
-                }
-                None => Err(unknown_session("env_render", r.session_id)),
+    /// The reply to the request `op` on session `session_id` with payload `payload`.
+    pub fn handle(&mut self, session_id: u64, op: i32, payload: &[u8]) -> Reply {
+        let mut restart = false;
+        let result = match EnvOp::try_from(op) {
+            Ok(EnvOp::EnvOpen) => decode(payload, "env_open")
+                .and_then(|o: EnvOpen| self.open(session_id, &o))
+                .map(|opened| vec![opened.encode_to_vec()]),
+            Ok(EnvOp::EnvReset) => decode(payload, "env_reset").and_then(|r: EnvReset| {
+                let (frames, all) = self.reset(session_id, &r)?;
+                restart = all;
+                Ok(frames)
+            }),
+            Ok(EnvOp::EnvStep) => {
+                decode(payload, "env_step").and_then(|s: EnvStep| self.step(session_id, &s))
+            }
+            Ok(EnvOp::EnvRender) => {
+                decode(payload, "env_render").and_then(|r: EnvRender| self.render(session_id, &r))
+            }
+            Ok(EnvOp::EnvClose) => match self.open.remove(&session_id) {
+                Some(_) => Ok(Vec::new()),
+                None => Err(unknown_session(session_id)),
             },
-            Body::EnvClose(c) => match self.open.remove(&c.session_id) {
-                Some(_) => Ok(Body::EnvClosed(EnvClosed {
-                    session_id: c.session_id,
-                })),
-                None => Err(unknown_session("env_close", c.session_id)),
-            },
-            _ => Err(error(
-                ErrorCode::UnknownType,
-                name,
-                format!("{name} is not an env session request"),
+            _ => Err(invalid(
+                "env_request.op",
+                format!("env_request.op = {op} is not an env request this worker serves"),
             )),
         };
-        Some(reply.unwrap_or_else(Body::Error))
+        match result {
+            Ok(frames) => {
+                let views: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+                Reply {
+                    header: EnvReply {
+                        session_id,
+                        op,
+                        fingerprint: paddock_proto::fingerprint(&views),
+                        restart,
+                        error: None,
+                    },
+                    frames,
+                }
+            }
+            Err(e) => Reply {
+                header: EnvReply {
+                    session_id,
+                    op,
+                    fingerprint: 0,
+                    restart: false,
+                    error: Some(e),
+                },
+                frames: Vec::new(),
+            },
+        }
     }
 
-    fn open(&mut self, o: &EnvOpen) -> Result<EnvOpened, Error> {
+    fn open(&mut self, id: u64, o: &EnvOpen) -> Result<paddock_proto::EnvOpened, Error> {
         if self.open.len() >= MAX_SESSIONS {
             return Err(error(
                 ErrorCode::Busy,
@@ -136,86 +163,58 @@ impl Sessions {
                 ),
             ));
         }
-        let config = self
-            .config_from_proto(o)
+        if self.open.contains_key(&id) {
+            return Err(invalid(
+                "env_request.session_id",
+                format!("env_request.session_id = {id} is open on this worker already"),
+            ));
+        }
+        let dir = self
+            .map_dir(o.map.as_ref())
             .map_err(|e| with_prefix(e, "env_open"))?;
+        let config = paddock_wire::env::config_from_proto(o, &dir, self.vehicle.as_ref())
+            .map_err(|e| with_prefix(e, "env_open"))?;
+        let learners = config.learners;
         let env = guarded(|| VecEnv::new(config))
-            .and_then(|r| r.map_err(|e| rollout_error(&e)))
+            .and_then(|r| r.map_err(|e| paddock_wire::env::env_error(&e, learners)))
             .map_err(|e| with_prefix(e, "env_open"))?;
-        self.next_id += 1;
-        let id = self.next_id;
-        let (low, high) = env.action_bounds();
-        let opened = EnvOpened {
-            session_id: id,
-            num_envs: u32_of(env.num_envs()),
-            num_beams: u32_of(env.num_beams()),
-            num_agents: u32_of(env.num_agents()),
-            action_low: low.to_vec(),
-            action_high: high.to_vec(),
-            dt: env.dt(),
-        };
+        let opened = paddock_wire::env::opened_to_proto(&env);
         self.open.insert(id, env);
         Ok(opened)
     }
 
-    fn reset(&mut self, r: &EnvReset) -> Result<EnvObservation, Error> {
-        let id = r.session_id;
-        let env = self
-            .open
-            .get_mut(&id)
-            .ok_or_else(|| unknown_session("env_reset", id))?;
-        let envs: Vec<usize> = r.envs.iter().map(|&i| i as usize).collect();
-        let poses = if r.poses.is_empty() {
-            None
-        } else {
-            let v = unpack_f64(&r.poses, "env_reset.poses")?;
-            if v.len() % 3 != 0 {
-                return Err(invalid(
-                    "env_reset.poses",
-                    format!(
-                        "env_reset.poses holds {} f64 values, not a whole number of [x, y, theta] poses",
-                        v.len()
-                    ),
-                ));
-            }
-            Some(
-                v.chunks_exact(3)
-                    .map(|p| Pose::new(p[0], p[1], p[2]))
-                    .collect::<Vec<_>>(),
-            )
-        };
+    /// The observation frames after a reset, and whether it was a restart point.
+    fn reset(&mut self, id: u64, r: &EnvReset) -> Result<(Vec<Vec<u8>>, bool), Error> {
+        let env = self.open.get_mut(&id).ok_or_else(|| unknown_session(id))?;
+        let reset = paddock_wire::env::reset_from_proto(r)?;
+        let all = reset.restarts_all(env.num_envs());
         let result = guarded(|| {
-            env.reset(&envs, &r.seeds, poses.as_deref())
-                .map(|f| observation(id, f))
+            env.reset(&reset.envs, &reset.seeds, reset.poses.as_deref())
+                .map(observation)
         });
-        self.finish(id, "env_reset", result)
+        self.finish(id, "env_reset", result).map(|f| (f, all))
     }
 
-    fn step(&mut self, s: &EnvStep) -> Result<EnvObservation, Error> {
-        let id = s.session_id;
-        let env = self
-            .open
-            .get_mut(&id)
-            .ok_or_else(|| unknown_session("env_step", id))?;
-        let n = env.num_envs();
-        if s.actions.len() != n * 8 {
-            return Err(invalid(
-                "env_step.actions",
-                format!(
-                    "env_step.actions has {} bytes; expected {n} envs x [steer, speed] as f32 = {} bytes",
-                    s.actions.len(),
-                    n * 8
-                ),
-            ));
-        }
-        let actions: Vec<f32> = s
-            .actions
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        let reset: Vec<usize> = s.reset_envs.iter().map(|&i| i as usize).collect();
-        let result = guarded(|| env.step(&actions, &reset).map(|f| observation(id, f)));
+    fn step(&mut self, id: u64, s: &EnvStep) -> Result<Vec<Vec<u8>>, Error> {
+        let env = self.open.get_mut(&id).ok_or_else(|| unknown_session(id))?;
+        let (actions, reset) =
+            paddock_wire::env::step_from_proto(s, env.num_envs(), env.num_learners())?;
+        let result = guarded(|| env.step(&actions, &reset).map(observation));
         self.finish(id, "env_step", result)
+    }
+
+    fn render(&mut self, id: u64, r: &EnvRender) -> Result<Vec<Vec<u8>>, Error> {
+        let env = self.open.get(&id).ok_or_else(|| unknown_session(id))?;
+        let renderers = &mut self.renderers;
+        std::panic::catch_unwind(AssertUnwindSafe(|| renderers.render(env, r)))
+            .unwrap_or_else(|_| {
+                Err(error(
+                    ErrorCode::Internal,
+                    "env_render",
+                    "rendering failed (a bug); the session is unchanged",
+                ))
+            })
+            .map(|(image, rgb)| vec![image.encode_to_vec(), rgb])
     }
 
     /// The reply of a session call; a panicked session is closed.
@@ -223,90 +222,16 @@ impl Sessions {
         &mut self,
         id: u64,
         prefix: &str,
-        result: Result<Result<EnvObservation, RolloutError>, Error>,
-    ) -> Result<EnvObservation, Error> {
+        result: Result<Result<Vec<Vec<u8>>, RolloutError>, Error>,
+    ) -> Result<Vec<Vec<u8>>, Error> {
+        let learners = self.open.get(&id).map_or(1, VecEnv::num_learners);
         match result {
-            Ok(r) => r.map_err(|e| with_prefix(rollout_error(&e), prefix)),
+            Ok(r) => r.map_err(|e| with_prefix(paddock_wire::env::env_error(&e, learners), prefix)),
             Err(panic) => {
                 self.open.remove(&id);
                 Err(with_prefix(panic, prefix))
             }
         }
-    }
-
-    fn config_from_proto(&mut self, o: &EnvOpen) -> Result<EnvConfig, Error> {
-        let map = self.map_dir(o.map.as_ref())?;
-        let mut opponents = Vec::with_capacity(o.opponents.len());
-        for (k, a) in o.opponents.iter().enumerate() {
-            // no parameters: the driver's defaults (a known driver; an unknown one is
-            // refused by the session's checks, naming it)
-            let params = match AgentSpec::with_defaults(&a.driver) {
-                Ok(defaults) if a.params.is_empty() => defaults.params,
-                _ => a.params.clone(),
-            };
-            opponents.push(AgentSpec {
-                driver: a.driver.clone(),
-                params,
-                vehicle: self.vehicle(&a.vehicle_yaml, &format!("opponents[{k}]"))?,
-            });
-        }
-        let collision_mode = match paddock_proto::CollisionMode::try_from(o.collision_mode) {
-            Ok(paddock_proto::CollisionMode::CollisionTerminate) => CollisionMode::Terminate,
-            Ok(paddock_proto::CollisionMode::CollisionStop) => CollisionMode::Stop,
-            Ok(paddock_proto::CollisionMode::CollisionIgnore) => CollisionMode::Ignore,
-            Err(_) => {
-                return Err(invalid(
-                    "collision_mode",
-                    format!(
-                        "collision_mode = {} is not a known CollisionMode",
-                        o.collision_mode
-                    ),
-                ));
-            }
-        };
-        let lidar = match &o.lidar {
-            None => LidarConfig::default(),
-            Some(l) => LidarConfig {
-                num_beams: l.num_beams as usize,
-                fov: l.fov,
-                max_range: l.max_range,
-                noise_std: l.noise_std,
-                mount_offset: l.mount_offset,
-            },
-        };
-        let obstacles = match &o.obstacles {
-            None => ObstacleConfig::default(),
-            Some(b) => ObstacleConfig {
-                count: b.count as usize,
-                length: b.length,
-                width: b.width,
-                passage: b.passage,
-                start_clearance: b.start_clearance,
-            },
-        };
-        let reward = match &o.reward {
-            None => RewardWeights::default(),
-            Some(w) => RewardWeights {
-                progress: w.progress,
-                collision: w.collision,
-                lap: w.lap,
-                time: w.time,
-            },
-        };
-        Ok(EnvConfig {
-            map: map.display().to_string(),
-            num_envs: o.num_envs as usize,
-            seed: o.seed,
-            opponents,
-            vehicle: self.vehicle(&o.vehicle_yaml, "")?,
-            lidar,
-            obstacles,
-            laps: o.laps,
-            time_limit: o.time_limit,
-            collision_mode,
-            reward,
-            frame_skip: o.frame_skip,
-        })
     }
 
     /// The directory of the map `m` names by hash (see the module docs).
@@ -333,10 +258,12 @@ impl Sessions {
         })
     }
 
-    /// The hash (lower case) of the map `o` names when it is a well-formed hash of a map
-    /// this worker does not hold, so the worker can fetch it before the open runs;
-    /// `None` when the map is here or the request is malformed (the open reports that).
-    pub fn missing_map(&mut self, o: &EnvOpen) -> Option<String> {
+    /// The hash (lower case) of the map an open request (its payload) names when it is a
+    /// well-formed hash of a map this worker does not hold, so the worker can fetch it
+    /// before the open runs; `None` when the map is here or the request is malformed
+    /// (the open reports that).
+    pub fn missing_map(&mut self, payload: &[u8]) -> Option<String> {
+        let o = EnvOpen::decode(payload).ok()?;
         let m = o.map.as_ref().filter(|m| is_hash(&m.hash))?;
         match self.find_map(m) {
             Some(_) => None,
@@ -369,26 +296,12 @@ impl Sessions {
     }
 }
 
-fn unknown_session(prefix: &str, id: u64) -> Error {
+fn unknown_session(id: u64) -> Error {
     error(
         ErrorCode::NotFound,
-        format!("{prefix}.session_id"),
-        format!("{prefix}.session_id = {id}: no such env session on this worker"),
+        "env_request.session_id",
+        format!("env_request.session_id = {id}: no such env session on this worker"),
     )
-}
-
-fn u32_of(v: usize) -> u32 {
-    u32::try_from(v).unwrap_or(u32::MAX)
-}
-
-fn vehicle_from_yaml(yaml: &str, prefix: &str) -> Result<VehicleParams, Error> {
-    VehicleParams::from_yaml_str(yaml).map_err(|e| {
-        let field = match e.field() {
-            Some(f) => format!("vehicle_yaml.{f}"),
-            None => "vehicle_yaml".into(),
-        };
-        with_prefix(invalid(field, e.to_string()), prefix)
-    })
 }
 
 /// Runs `f`, turning a panic into an `INTERNAL` error.
@@ -407,58 +320,30 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, Error> {
     })
 }
 
-/// The wire error of a session failure, with the field as the client named it.
-fn rollout_error(e: &RolloutError) -> Error {
-    match e {
-        RolloutError::Invalid { field, .. } => invalid(field.clone(), e.to_string()),
-        RolloutError::Map(_) => invalid("map", e.to_string()),
-        RolloutError::Driver { agent, .. } => invalid(
-            format!("opponents[{}]", agent.saturating_sub(1)),
-            e.to_string(),
-        ),
-        RolloutError::World(WorldError::Config { field, .. }) => {
-            invalid(field.clone(), e.to_string())
-        }
-        RolloutError::World(WorldError::Placement { .. }) => {
-            error(ErrorCode::Internal, "", e.to_string())
-        }
-        RolloutError::World(_) => invalid("", e.to_string()),
-    }
-}
-
-fn bytes_of(flags: &[bool]) -> Vec<u8> {
-    flags.iter().map(|&b| u8::from(b)).collect()
-}
-
-fn observation(session_id: u64, f: &EnvFrame) -> EnvObservation {
-    EnvObservation {
-        session_id,
-        num_envs: u32_of(f.num_envs),
-        scans: pack_f32(&f.scans),
-        states: pack_f64(&f.states),
-        rewards: pack_f64(&f.rewards),
-        terminated: bytes_of(&f.terminated),
-        truncated: bytes_of(&f.truncated),
-        progress: pack_f64(&f.progress),
-        laps: pack_u32(&f.laps),
-        time: pack_f64(&f.time),
-        agent_collisions: bytes_of(&f.agent_collisions),
-        agent_lap_counts: pack_u32(&f.agent_lap_counts),
-        agent_lap_times: pack_f64(&f.agent_lap_times),
-    }
+/// The payload frames of an observation.
+fn observation(f: &paddock_rollout::env::EnvFrame) -> Vec<Vec<u8>> {
+    let (meta, scans) = paddock_wire::env::observation_frames(f);
+    vec![meta.encode_to_vec(), scans]
 }
 
 #[cfg(test)]
 mod tests {
-    use paddock_proto::{Lidar, MapRef, unpack_f32};
+    use paddock_proto::{
+        EnvObservation, EnvOpened, Lidar, MapRef, pack_f32, pack_f64, unpack_f32, unpack_f64,
+    };
     use paddock_rollout::env::STATE_SIZE;
 
     use super::*;
 
+    const OPEN: i32 = EnvOp::EnvOpen as i32;
+    const RESET: i32 = EnvOp::EnvReset as i32;
+    const STEP: i32 = EnvOp::EnvStep as i32;
+    const CLOSE: i32 = EnvOp::EnvClose as i32;
+
     fn lakeside() -> MapRef {
         let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
         let b = paddock_proto::read_map_dir(&dir, "lakeside").unwrap();
-        paddock_proto::convert::map_ref(&b)
+        paddock_wire::map_ref(&b)
     }
 
     fn open_msg(num_envs: u32) -> EnvOpen {
@@ -480,85 +365,137 @@ mod tests {
         }
     }
 
-    fn expect_err(reply: Option<Body>) -> Error {
-        match reply {
-            Some(Body::Error(e)) => e,
-            other => panic!("expected an error, got {other:?}"),
-        }
+    fn expect_err(r: Reply) -> Error {
+        assert!(r.frames.is_empty(), "an error carries no payload");
+        let header = r.header.clone();
+        r.header
+            .error
+            .unwrap_or_else(|| panic!("expected an error, got {header:?}"))
     }
 
-    fn expect_obs(reply: Option<Body>) -> EnvObservation {
-        match reply {
-            Some(Body::EnvObservation(o)) => o,
-            other => panic!("expected an observation, got {other:?}"),
-        }
+    fn expect_obs(r: Reply) -> (EnvObservation, Vec<u8>) {
+        assert!(r.header.error.is_none(), "{:?}", r.header.error);
+        assert_eq!(r.frames.len(), 2);
+        let views: Vec<&[u8]> = r.frames.iter().map(Vec::as_slice).collect();
+        assert_eq!(r.header.fingerprint, paddock_proto::fingerprint(&views));
+        (
+            EnvObservation::decode(r.frames[0].as_slice()).unwrap(),
+            r.frames[1].clone(),
+        )
     }
 
-    fn open(s: &mut Sessions, n: u32) -> EnvOpened {
-        match s.handle(1, Body::EnvOpen(open_msg(n))) {
-            Some(Body::EnvOpened(o)) => o,
-            other => panic!("expected opened, got {other:?}"),
-        }
+    fn open(s: &mut Sessions, id: u64, n: u32) -> EnvOpened {
+        let r = s.handle(id, OPEN, &open_msg(n).encode_to_vec());
+        assert!(r.header.error.is_none(), "{:?}", r.header.error);
+        assert_eq!(r.header.session_id, id);
+        EnvOpened::decode(r.frames[0].as_slice()).unwrap()
     }
 
     fn actions(n: usize) -> Vec<u8> {
         pack_f32(&(0..n).flat_map(|_| [0.0f32, 2.0]).collect::<Vec<_>>())
     }
 
+    fn step(actions: Vec<u8>) -> Vec<u8> {
+        EnvStep {
+            actions,
+            reset_envs: vec![],
+        }
+        .encode_to_vec()
+    }
+
     #[test]
     fn open_reset_step_close() {
         let mut s = Sessions::new();
-        let o = open(&mut s, 3);
+        let id = 0x1234_5678;
+        let o = open(&mut s, id, 3);
         assert_eq!((o.num_envs, o.num_beams, o.num_agents), (3, 64, 1));
         assert_eq!(o.action_low.len(), 2);
         assert!(o.action_low[0] < 0.0 && o.action_high[1] > 0.0);
         assert_eq!(s.count(), 1);
-        let id = o.session_id;
-        let r = expect_obs(s.handle(
-            2,
-            Body::EnvReset(EnvReset {
-                session_id: id,
-                seeds: vec![1, 2, 3],
-                ..Default::default()
-            }),
-        ));
-        assert_eq!(r.scans.len(), 3 * 64 * 4);
-        assert_eq!(r.states.len(), 3 * STATE_SIZE * 8);
-        assert_eq!(r.terminated, vec![0; 3]);
-        assert_eq!(r.agent_lap_counts.len(), 3 * 4);
-        let scans = unpack_f32(&r.scans, "scans").unwrap();
+        let reset = EnvReset {
+            seeds: vec![1, 2, 3],
+            ..Default::default()
+        };
+        let r = s.handle(id, RESET, &reset.encode_to_vec());
+        assert!(
+            r.header.restart,
+            "a seeded reset of every env is a restart point"
+        );
+        let (meta, scans) = expect_obs(r);
+        assert_eq!(scans.len(), 3 * 64 * 4);
+        assert_eq!(meta.states.len(), 3 * STATE_SIZE * 8);
+        assert_eq!(meta.terminated, vec![0; 3]);
+        assert_eq!(meta.agent_lap_counts.len(), 3 * 4);
+        let scans = unpack_f32(&scans, "scans").unwrap();
         assert!(scans.iter().all(|&x| x > 0.0 && x < 31.0));
-        let st = expect_obs(s.handle(
-            3,
-            Body::EnvStep(EnvStep {
-                session_id: id,
-                actions: actions(3),
-                reset_envs: vec![],
-            }),
-        ));
+        let r = s.handle(id, STEP, &step(actions(3)));
+        assert!(!r.header.restart);
+        let fingerprint = r.header.fingerprint;
+        let (st, st_scans) = expect_obs(r);
         let time = unpack_f64(&st.time, "time").unwrap();
         assert_eq!(time, vec![0.02; 3]);
-        // the same through a VecEnv directly: the packed bytes are its frame
-        let mut cfg = s.config_from_proto(&open_msg(3)).unwrap();
-        cfg.num_envs = 3;
+        // the same through a VecEnv directly: the frames are its frame, packed
+        let cfg = paddock_wire::env::config_from_proto(
+            &open_msg(3),
+            &Circuit::resolve("lakeside", &[]).unwrap().dir,
+            None,
+        )
+        .unwrap();
         let mut env = VecEnv::new(cfg).unwrap();
         env.reset(&[], &[1, 2, 3], None).unwrap();
         let f = env.step(&[0.0, 2.0, 0.0, 2.0, 0.0, 2.0], &[]).unwrap();
-        assert_eq!(st, observation(id, f));
-        match s.handle(
-            4,
-            Body::EnvClose(paddock_proto::EnvClose { session_id: id }),
-        ) {
-            Some(Body::EnvClosed(c)) => assert_eq!(c.session_id, id),
-            other => panic!("unexpected {other:?}"),
-        }
+        assert_eq!(observation(f), vec![st.encode_to_vec(), st_scans.clone()]);
+        // and the fingerprint is the same on a second worker replaying the requests
+        let mut other = Sessions::new();
+        open(&mut other, id, 3);
+        other.handle(id, RESET, &reset.encode_to_vec());
+        assert_eq!(
+            other.handle(id, STEP, &step(actions(3))).header.fingerprint,
+            fingerprint
+        );
+        let r = s.handle(id, CLOSE, &[]);
+        assert!(r.header.error.is_none() && r.frames.is_empty());
         assert_eq!(s.count(), 0);
-        let e = expect_err(s.handle(
-            5,
-            Body::EnvClose(paddock_proto::EnvClose { session_id: id }),
-        ));
+        let e = expect_err(s.handle(id, CLOSE, &[]));
         assert_eq!(e.code, ErrorCode::NotFound as i32);
-        assert_eq!(e.field, "env_close.session_id");
+        assert_eq!(e.field, "env_request.session_id");
+    }
+
+    #[test]
+    fn learner_cars_take_one_action_row_each() {
+        let mut s = Sessions::new();
+        let mut o = open_msg(2);
+        o.learners = 2;
+        o.opponents = vec![paddock_proto::AgentSpec {
+            driver: "pure-pursuit".into(),
+            ..Default::default()
+        }];
+        let r = s.handle(1, OPEN, &o.encode_to_vec());
+        let opened = EnvOpened::decode(r.frames[0].as_slice()).unwrap();
+        assert_eq!((opened.num_agents, opened.num_learners), (3, 2));
+        let e = expect_err(s.handle(1, STEP, &step(actions(2))));
+        assert!(
+            e.message
+                .contains("expected 2 envs x 2 learners x [steer, speed] as f32 = 32 bytes"),
+            "{}",
+            e.message
+        );
+        let (st, scans) = expect_obs(s.handle(1, STEP, &step(actions(4))));
+        assert_eq!(scans.len(), 2 * 2 * 64 * 4);
+        assert_eq!(st.rewards.len(), 2 * 2 * 8);
+        assert_eq!(st.terminated.len(), 2 * 2);
+        assert_eq!(st.truncated.len(), 2);
+        assert_eq!(st.progress.len(), 2 * 2 * 8);
+        assert_eq!(st.agent_lap_counts.len(), 2 * 3 * 4);
+        // an opponent's error names it among the opponents, after the learners
+        let mut bad = open_msg(1);
+        bad.learners = 2;
+        bad.opponents = vec![paddock_proto::AgentSpec {
+            driver: "nobody".into(),
+            ..Default::default()
+        }];
+        let e = expect_err(Sessions::new().handle(4, OPEN, &bad.encode_to_vec()));
+        assert_eq!(e.field, "env_open.opponents[0].driver");
     }
 
     #[test]
@@ -567,14 +504,13 @@ mod tests {
             mu: 0.6,
             ..Default::default()
         };
-        let mut s = Sessions::new();
-        s.set_default_vehicle(fitted.clone());
+        let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
         let mut o = open_msg(1);
         o.opponents = vec![paddock_proto::AgentSpec {
             driver: "pure-pursuit".into(),
             ..Default::default()
         }];
-        let cfg = s.config_from_proto(&o).unwrap();
+        let cfg = paddock_wire::env::config_from_proto(&o, &dir, Some(&fitted)).unwrap();
         assert_eq!(cfg.vehicle, fitted);
         assert_eq!(cfg.opponents[0].vehicle, fitted);
         // a request that carries its own vehicle keeps it
@@ -583,23 +519,22 @@ mod tests {
             ..Default::default()
         };
         o.vehicle_yaml = own.to_yaml_string();
-        assert_eq!(s.config_from_proto(&o).unwrap().vehicle, own);
-        let plain = Sessions::new().config_from_proto(&open_msg(1)).unwrap();
+        assert_eq!(
+            paddock_wire::env::config_from_proto(&o, &dir, Some(&fitted))
+                .unwrap()
+                .vehicle,
+            own
+        );
+        let plain = paddock_wire::env::config_from_proto(&open_msg(1), &dir, None).unwrap();
         assert_eq!(plain.vehicle, VehicleParams::default());
     }
 
     #[test]
     fn bad_requests_name_the_field() {
         let mut s = Sessions::new();
-        let id = open(&mut s, 2).session_id;
-        let step = |actions: Vec<u8>| {
-            Body::EnvStep(EnvStep {
-                session_id: id,
-                actions,
-                reset_envs: vec![],
-            })
-        };
-        let e = expect_err(s.handle(2, step(vec![0; 12])));
+        let id = 7;
+        open(&mut s, id, 2);
+        let e = expect_err(s.handle(id, STEP, &step(vec![0; 12])));
         assert_eq!(e.field, "env_step.actions");
         assert!(
             e.message
@@ -608,47 +543,44 @@ mod tests {
             e.message
         );
         assert!(e.message.contains("12 bytes"), "{}", e.message);
-        let e = expect_err(s.handle(3, step(pack_f32(&[0.0, 1.0, f32::NAN, 1.0]))));
+        let e = expect_err(s.handle(id, STEP, &step(pack_f32(&[0.0, 1.0, f32::NAN, 1.0]))));
         assert_eq!(e.code, ErrorCode::InvalidArgument as i32);
         assert_eq!(e.field, "env_step.actions[2]");
         assert!(e.message.contains("NaN"), "{}", e.message);
-        let e = expect_err(s.handle(
-            4,
-            Body::EnvStep(EnvStep {
-                session_id: 99,
-                actions: actions(2),
-                reset_envs: vec![],
-            }),
-        ));
+        let e = expect_err(s.handle(99, STEP, &step(actions(2))));
         assert_eq!(
             (e.code, e.field.as_str()),
-            (ErrorCode::NotFound as i32, "env_step.session_id")
+            (ErrorCode::NotFound as i32, "env_request.session_id")
         );
-        let e = expect_err(s.handle(
-            5,
-            Body::EnvReset(EnvReset {
-                session_id: id,
-                poses: pack_f64(&[1.0, 2.0]),
-                ..Default::default()
-            }),
-        ));
+        let poses = EnvReset {
+            poses: pack_f64(&[1.0, 2.0]),
+            ..Default::default()
+        };
+        let e = expect_err(s.handle(id, RESET, &poses.encode_to_vec()));
         assert_eq!(e.field, "env_reset.poses");
-        let e = expect_err(s.handle(
-            6,
-            Body::EnvReset(EnvReset {
-                session_id: id,
-                envs: vec![7],
-                ..Default::default()
-            }),
-        ));
+        let envs = EnvReset {
+            envs: vec![7],
+            ..Default::default()
+        };
+        let e = expect_err(s.handle(id, RESET, &envs.encode_to_vec()));
         assert_eq!(e.field, "env_reset.envs[0]");
+        let e = expect_err(s.handle(id, STEP, &[0xff, 0xff, 0xff]));
+        assert_eq!(
+            (e.code, e.field.as_str()),
+            (ErrorCode::BadMessage as i32, "env_step")
+        );
+        let e = expect_err(s.handle(id, OPEN, &open_msg(1).encode_to_vec()));
+        assert_eq!(
+            e.field, "env_request.session_id",
+            "an id in use is not opened twice"
+        );
         // the session survived all of that
-        expect_obs(s.handle(7, step(actions(2))));
+        expect_obs(s.handle(id, STEP, &step(actions(2))));
 
         let bad_open = |f: fn(&mut EnvOpen)| {
             let mut o = open_msg(1);
             f(&mut o);
-            expect_err(Sessions::new().handle(8, Body::EnvOpen(o)))
+            expect_err(Sessions::new().handle(1, OPEN, &o.encode_to_vec()))
         };
         let e = bad_open(|o| o.num_envs = 0);
         assert_eq!(e.field, "env_open.num_envs");
@@ -674,19 +606,15 @@ mod tests {
             driver: "pure-pursuit".into(),
             ..Default::default()
         }];
-        match Sessions::new().handle(8, Body::EnvOpen(with_opponent)) {
-            Some(Body::EnvOpened(o)) => assert_eq!(o.num_agents, 2),
-            other => panic!("no parameters = the defaults: {other:?}"),
-        }
+        let r = Sessions::new().handle(1, OPEN, &with_opponent.encode_to_vec());
+        let o = EnvOpened::decode(r.frames[0].as_slice()).unwrap();
+        assert_eq!(o.num_agents, 2, "no parameters = the defaults");
         let e = bad_open(|o| o.vehicle_yaml = "v_max: .nan".into());
         assert!(e.field.starts_with("env_open.vehicle_yaml"), "{}", e.field);
         let e = bad_open(|o| o.lidar.as_mut().unwrap().fov = -1.0);
-        assert_eq!(e.field, "env_open.lidar");
-        let e = expect_err(s.handle(
-            9,
-            Body::Heartbeat(paddock_proto::Heartbeat { in_flight: 0 }),
-        ));
-        assert_eq!(e.code, ErrorCode::UnknownType as i32);
+        assert_eq!(e.field, "env_open.lidar.fov");
+        let e = expect_err(s.handle(id, 42, &[]));
+        assert_eq!(e.field, "env_request.op");
     }
 
     #[test]
@@ -699,9 +627,13 @@ mod tests {
         let mut s = Sessions::new();
         s.set_map_cache(cache);
         let mut o = open_msg(1);
-        o.map = Some(paddock_proto::convert::map_ref(&bundle));
-        let reply = s.handle(1, Body::EnvOpen(o));
+        o.map = Some(paddock_wire::map_ref(&bundle));
+        assert_eq!(s.missing_map(&o.encode_to_vec()), None);
+        let reply = s.handle(3, OPEN, &o.encode_to_vec());
         let _ = std::fs::remove_dir_all(&tmp);
-        assert!(matches!(reply, Some(Body::EnvOpened(_))), "{reply:?}");
+        assert!(reply.header.error.is_none(), "{reply:?}");
+        let mut gone = open_msg(1);
+        gone.map.as_mut().unwrap().hash = "cd".repeat(32);
+        assert_eq!(s.missing_map(&gone.encode_to_vec()), Some("cd".repeat(32)));
     }
 }

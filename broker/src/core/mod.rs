@@ -2,6 +2,7 @@
 //! ("sans-IO"): the server feeds them messages and the current time and carries out
 //! what they decide. Each is unit-tested with a virtual clock.
 
+pub mod blobs;
 pub mod replay;
 pub mod scheduler;
 pub mod sessions;
@@ -9,11 +10,12 @@ pub mod workers;
 
 use std::time::Duration;
 
-pub use replay::{EnvRequest, LogLimits, SessionLog};
+pub use blobs::{BlobLimits, Blobs};
+pub use replay::{LogLimits, Logged, SessionLog};
 pub use scheduler::{Assigned, Busy, Completion, Limits, Scheduler};
 pub use sessions::{
-    Forwarded, Lost, Orphans, Pending, Queued, ReplayStats, ReplayStep, Session, SessionState,
-    Sessions,
+    Held, Lost, Orphans, Pending, ReplayStats, Reply, ReplyHead, Route, Sent, Session,
+    SessionState, Sessions,
 };
 pub use workers::{Liveness, Tick, WorkerInfo, WorkerKey, Workers};
 
@@ -24,11 +26,12 @@ pub type SourceId = u64;
 /// A client's ZeroMQ routing identity on the frontend socket.
 pub type ClientKey = Vec<u8>;
 
-/// Workers and tasks together: credit-based dispatch and requeueing.
+/// Workers and tasks together: credit-based dispatch and requeueing. `R` is what the
+/// broker keeps of a task's result.
 #[derive(Debug)]
-pub struct Dispatcher {
+pub struct Dispatcher<R> {
     pub workers: Workers,
-    pub tasks: Scheduler,
+    pub tasks: Scheduler<R>,
 }
 
 /// A dead worker's aftermath.
@@ -40,7 +43,7 @@ pub struct Requeued {
     pub exhausted: Vec<TaskId>,
 }
 
-impl Dispatcher {
+impl<R> Dispatcher<R> {
     pub fn new(liveness: Liveness, limits: Limits) -> Self {
         Self {
             workers: Workers::new(liveness),
@@ -84,15 +87,11 @@ impl Dispatcher {
         (tick, r)
     }
 
-    /// A worker's result: frees its credit and stores the outcome (first one wins).
-    pub fn result(
-        &mut self,
-        worker: &[u8],
-        task: TaskId,
-        outcome: paddock_proto::TaskOutcome,
-    ) -> Completion {
+    /// A worker's result: frees its credit and stores the outcome (first one wins, and
+    /// only from a worker the task was handed to).
+    pub fn result(&mut self, worker: &[u8], task: TaskId, outcome: R) -> Completion {
         self.workers.release(worker, task);
-        self.tasks.complete(task, outcome)
+        self.tasks.complete_from(task, worker, outcome)
     }
 }
 
@@ -114,7 +113,7 @@ mod tests {
 
     #[test]
     fn dispatch_respects_credit_and_a_dead_workers_tasks_run_elsewhere() {
-        let mut d = Dispatcher::new(Liveness::default(), Limits::default());
+        let mut d = Dispatcher::<u64>::new(Liveness::default(), Limits::default());
         d.workers
             .hello(b"a".to_vec(), &hello("a", 2), s(0.0))
             .unwrap();

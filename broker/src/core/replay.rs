@@ -2,20 +2,20 @@
 //! another worker when its worker dies.
 //!
 //! The simulator is deterministic (same open request, seeds and actions: same bits), so
-//! a session is rebuilt by sending its `EnvOpen` and then every answered `EnvReset` and
-//! `EnvStep`, in order, to a live worker. Each entry keeps a fingerprint of the reply
-//! the client got, and the replay's replies are checked against it: a rebuilt session
-//! that would differ is reported lost instead of continuing with other numbers.
+//! a session is rebuilt by sending its open request and then every answered reset and
+//! step, in order, to a live worker. The broker never decodes them: it keeps each
+//! request's payload bytes as the client sent them, and the fingerprint of the reply
+//! that the worker computed ([`paddock_proto::fingerprint`], in the reply's header). The
+//! replay's replies must carry the same fingerprints: a rebuilt session that would differ
+//! is reported lost instead of continuing with other numbers.
 //!
 //! Memory is bounded: a reset of every env with one seed each makes everything before
-//! it irrelevant, so the log restarts there (compaction); past [`LogLimits::max_bytes`]
-//! or [`LogLimits::max_entries`] the log is dropped and the session marked not
-//! replayable (until its next such reset), with the reason given to the client if its
-//! worker dies.
+//! it irrelevant (the worker says so in its reply's `restart` flag), so the log restarts
+//! there (compaction); past [`LogLimits::max_bytes`] or [`LogLimits::max_entries`] the
+//! log is dropped and the session marked not replayable (until its next such reset),
+//! with the reason given to the client if its worker dies.
 
 use std::time::Duration;
-
-use paddock_proto::{Body, EnvObservation, EnvOpen, EnvReset, EnvStep};
 
 /// Bounds of the replay logs, and how long a session whose worker died waits for
 /// another worker.
@@ -42,121 +42,24 @@ impl Default for LogLimits {
     }
 }
 
-/// A request that changes a session's state, as the client sent it (the session id is
-/// set when it is sent to a worker).
+/// A request that changes a session's state (a reset or a step), as the client sent it:
+/// its op (`paddock_proto::EnvOp`) and payload bytes, never decoded by the broker.
 #[derive(Debug, Clone, PartialEq)]
-pub enum EnvRequest {
-    Reset(EnvReset),
-    Step(EnvStep),
+pub struct Logged {
+    pub op: i32,
+    pub payload: Vec<u8>,
 }
 
-impl EnvRequest {
+impl Logged {
     /// Memory held for it in a log (payload and bookkeeping).
     fn bytes(&self) -> usize {
-        let payload = match self {
-            EnvRequest::Reset(r) => r.envs.len() * 4 + r.seeds.len() * 8 + r.poses.len(),
-            EnvRequest::Step(s) => s.actions.len() + s.reset_envs.len() * 4,
-        };
-        payload + std::mem::size_of::<Entry>()
+        self.payload.len() + std::mem::size_of::<Entry>()
     }
-
-    /// The message for a worker whose id for the session is `worker_session`.
-    pub fn to_body(&self, worker_session: u64) -> Body {
-        match self {
-            EnvRequest::Reset(r) => Body::EnvReset(EnvReset {
-                session_id: worker_session,
-                ..r.clone()
-            }),
-            EnvRequest::Step(s) => Body::EnvStep(EnvStep {
-                session_id: worker_session,
-                ..s.clone()
-            }),
-        }
-    }
-
-    /// Whether it resets every one of `num_envs` envs, each with its own seed: the
-    /// session's state after it does not depend on anything before it.
-    fn restarts_all(&self, num_envs: usize) -> bool {
-        let EnvRequest::Reset(r) = self else {
-            return false;
-        };
-        let targets = if r.envs.is_empty() {
-            num_envs
-        } else {
-            let mut seen = vec![false; num_envs];
-            for &i in &r.envs {
-                match seen.get_mut(i as usize) {
-                    Some(s) if !*s => *s = true,
-                    _ => return false,
-                }
-            }
-            if seen.iter().any(|s| !s) {
-                return false;
-            }
-            r.envs.len()
-        };
-        r.seeds.len() == targets
-    }
-}
-
-/// A fingerprint of an observation, to check a replayed reply against the original
-/// (all numeric fields; not the session id, which differs between workers).
-pub fn fingerprint(o: &EnvObservation) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ u64::from(o.num_envs);
-    for field in [
-        &o.scans,
-        &o.states,
-        &o.rewards,
-        &o.terminated,
-        &o.truncated,
-        &o.progress,
-        &o.laps,
-        &o.time,
-        &o.agent_collisions,
-        &o.agent_lap_counts,
-        &o.agent_lap_times,
-    ] {
-        h = mix(h, field.len() as u64);
-        h = hash_bytes(h, field);
-    }
-    h
-}
-
-/// Folds `bytes` into `h`: four independent lanes of 8-byte words, so the multiplies of a
-/// 64-env step's scans (about 276 KB, on the broker's loop for every step) overlap instead of
-/// waiting on each other; then the tail, and the lanes folded together.
-fn hash_bytes(h: u64, bytes: &[u8]) -> u64 {
-    let word = |w: &[u8]| {
-        let mut b = [0u8; 8];
-        b[..w.len()].copy_from_slice(w);
-        u64::from_le_bytes(b)
-    };
-    let mut lanes = [
-        h,
-        h ^ 0x9e37_79b9_7f4a_7c15,
-        h ^ 0xc2b2_ae3d_27d4_eb4f,
-        h ^ 0x1656_67b1_9e37_79f9,
-    ];
-    let mut blocks = bytes.chunks_exact(32);
-    for block in &mut blocks {
-        for (lane, w) in lanes.iter_mut().zip(block.chunks_exact(8)) {
-            *lane = mix(*lane, word(w));
-        }
-    }
-    let mut h = lanes.into_iter().fold(h, mix);
-    for w in blocks.remainder().chunks(8) {
-        h = mix(h, word(w));
-    }
-    h
-}
-
-fn mix(h: u64, v: u64) -> u64 {
-    (h ^ v).wrapping_mul(0x0100_0000_01b3).rotate_left(23)
 }
 
 #[derive(Debug, Clone, PartialEq)]
 struct Entry {
-    request: EnvRequest,
+    request: Logged,
     /// Fingerprint of the reply the client got.
     reply: u64,
 }
@@ -165,8 +68,7 @@ struct Entry {
 /// compaction.
 #[derive(Debug, Clone)]
 pub struct SessionLog {
-    open: EnvOpen,
-    num_envs: usize,
+    open: Vec<u8>,
     entries: Vec<Entry>,
     bytes: usize,
     limits: LogLimits,
@@ -176,11 +78,10 @@ pub struct SessionLog {
 }
 
 impl SessionLog {
-    /// The log of a session opened with `open`, of `num_envs` envs.
-    pub fn new(open: EnvOpen, num_envs: usize, limits: LogLimits) -> Self {
+    /// The log of a session opened with the open request `open` (its payload bytes).
+    pub fn new(open: Vec<u8>, limits: LogLimits) -> Self {
         Self {
             open,
-            num_envs,
             entries: Vec::new(),
             bytes: 0,
             limits,
@@ -189,11 +90,10 @@ impl SessionLog {
         }
     }
 
-    /// Records a request the worker answered with `reply`.
-    pub fn record(&mut self, request: EnvRequest, reply: &EnvObservation) {
-        if request.restarts_all(self.num_envs)
-            && (!self.entries.is_empty() || self.not_replayable.is_some())
-        {
+    /// Records a request the worker answered with a reply of fingerprint `reply`;
+    /// `restart`: the worker says the request reset every env with its own seed.
+    pub fn record(&mut self, request: Logged, reply: u64, restart: bool) {
+        if restart && (!self.entries.is_empty() || self.not_replayable.is_some()) {
             // the open and this reset determine the session again
             self.entries.clear();
             self.bytes = 0;
@@ -220,10 +120,7 @@ impl SessionLog {
             return;
         }
         self.bytes += bytes;
-        self.entries.push(Entry {
-            request,
-            reply: fingerprint(reply),
-        });
+        self.entries.push(Entry { request, reply });
     }
 
     /// Ok when the session can be rebuilt, else why not.
@@ -234,8 +131,8 @@ impl SessionLog {
         }
     }
 
-    /// The request that opened the session.
-    pub fn open(&self) -> &EnvOpen {
+    /// The payload of the request that opened the session.
+    pub fn open(&self) -> &[u8] {
         &self.open
     }
 
@@ -249,20 +146,19 @@ impl SessionLog {
     }
 
     /// Request `index` of the replay.
-    pub fn request(&self, index: usize) -> Option<&EnvRequest> {
+    pub fn request(&self, index: usize) -> Option<&Logged> {
         self.entries.get(index).map(|e| &e.request)
     }
 
-    /// Whether `reply` to replayed request `index` equals the reply the client got.
-    pub fn matches(&self, index: usize, reply: &EnvObservation) -> bool {
-        self.entries
-            .get(index)
-            .is_some_and(|e| e.reply == fingerprint(reply))
+    /// Whether the reply fingerprint `reply` to replayed request `index` equals that of
+    /// the reply the client got.
+    pub fn matches(&self, index: usize, reply: u64) -> bool {
+        self.entries.get(index).is_some_and(|e| e.reply == reply)
     }
 
-    /// Bytes held.
+    /// Bytes held (the open request and the log).
     pub fn bytes(&self) -> usize {
-        self.bytes
+        self.bytes + self.open.len()
     }
 
     /// Times the log restarted at a reset of every env.
@@ -275,103 +171,84 @@ impl SessionLog {
 mod tests {
     use super::*;
 
-    fn step(a: f32) -> EnvRequest {
-        EnvRequest::Step(EnvStep {
-            session_id: 0,
-            actions: paddock_proto::pack_f32(&[0.0, a]),
-            reset_envs: vec![],
-        })
+    const RESET: i32 = paddock_proto::EnvOp::EnvReset as i32;
+    const STEP: i32 = paddock_proto::EnvOp::EnvStep as i32;
+
+    fn step(a: u8) -> Logged {
+        Logged {
+            op: STEP,
+            payload: vec![a; 16],
+        }
     }
 
-    fn reset(envs: Vec<u32>, seeds: Vec<u64>) -> EnvRequest {
-        EnvRequest::Reset(EnvReset {
-            session_id: 0,
-            envs,
-            seeds,
-            poses: vec![],
-        })
-    }
-
-    fn obs(t: f64) -> EnvObservation {
-        EnvObservation {
-            num_envs: 2,
-            time: paddock_proto::pack_f64(&[t, t]),
-            ..Default::default()
+    fn reset(a: u8) -> Logged {
+        Logged {
+            op: RESET,
+            payload: vec![a; 4],
         }
     }
 
     fn log(limits: LogLimits) -> SessionLog {
-        SessionLog::new(EnvOpen::default(), 2, limits)
+        SessionLog::new(b"open".to_vec(), limits)
     }
 
     #[test]
     fn replies_are_checked_by_fingerprint() {
         let mut l = log(LogLimits::default());
-        l.record(reset(vec![], vec![]), &obs(0.0));
-        l.record(step(1.0), &obs(0.01));
+        l.record(reset(0), 11, false);
+        l.record(step(1), 12, false);
         assert_eq!(l.len(), 2);
-        assert!(l.matches(1, &obs(0.01)));
-        assert!(!l.matches(1, &obs(0.02)), "a different reply is caught");
-        assert!(!l.matches(2, &obs(0.01)), "no such entry");
-        let mut other_id = obs(0.01);
-        other_id.session_id = 9;
-        assert!(l.matches(1, &other_id), "the session id is not compared");
-        assert_eq!(l.request(1), Some(&step(1.0)));
-        match l.request(1).expect("entry 1 is logged").to_body(7) {
-            Body::EnvStep(s) => assert_eq!(s.session_id, 7),
-            other => panic!("expected a step, got {other:?}"),
-        }
+        assert!(l.matches(1, 12));
+        assert!(!l.matches(1, 13), "a different reply is caught");
+        assert!(!l.matches(2, 12), "no such entry");
+        assert_eq!(l.request(1), Some(&step(1)));
+        assert_eq!(l.open(), b"open");
     }
 
     #[test]
-    fn a_seeded_reset_of_every_env_compacts_the_log() {
+    fn a_restart_point_compacts_the_log() {
         let mut l = log(LogLimits::default());
-        l.record(reset(vec![], vec![]), &obs(0.0));
+        l.record(reset(0), 1, false);
         for k in 0..10 {
-            l.record(step(k as f32), &obs(0.01 * k as f64));
+            l.record(step(k), 2, false);
         }
-        // not every env, or not every env seeded: the past still matters
-        l.record(reset(vec![1], vec![5]), &obs(0.0));
-        l.record(reset(vec![], vec![5]), &obs(0.0));
-        l.record(reset(vec![0, 0], vec![5, 6]), &obs(0.0));
-        l.record(reset(vec![], vec![]), &obs(0.0));
-        assert_eq!((l.len(), l.compactions()), (15, 0));
-        l.record(reset(vec![1, 0], vec![5, 6]), &obs(0.0));
+        assert_eq!((l.len(), l.compactions()), (11, 0));
+        l.record(reset(5), 3, true);
         assert_eq!((l.len(), l.compactions()), (1, 1));
-        l.record(step(1.0), &obs(0.01));
-        l.record(reset(vec![], vec![3, 4]), &obs(0.0));
+        l.record(step(1), 4, false);
+        l.record(reset(6), 5, true);
         assert_eq!((l.len(), l.compactions()), (1, 2));
-        assert_eq!(l.request(0), Some(&reset(vec![], vec![3, 4])));
+        assert_eq!(l.request(0), Some(&reset(6)));
         assert!(l.replayable().is_ok());
     }
 
     #[test]
     fn past_its_bound_a_session_is_not_replayable() {
-        let per = step(0.0).bytes();
+        let per = step(0).bytes();
         let mut l = log(LogLimits {
             max_bytes: 10 * per,
             ..LogLimits::default()
         });
         for _ in 0..10 {
-            l.record(step(0.0), &obs(0.0));
+            l.record(step(0), 0, false);
         }
         assert!(l.replayable().is_ok());
-        assert_eq!(l.bytes(), 10 * per);
-        l.record(step(0.0), &obs(0.0));
+        assert_eq!(l.bytes(), 10 * per + 4);
+        l.record(step(0), 0, false);
         let why = l.replayable().unwrap_err();
         assert!(
             why.contains("bound") && why.contains("11 requests"),
             "{why}"
         );
-        assert_eq!((l.len(), l.bytes()), (0, 0), "the memory is freed");
-        l.record(step(0.0), &obs(0.0));
+        assert_eq!((l.len(), l.bytes()), (0, 4), "the memory is freed");
+        l.record(step(0), 0, false);
         assert!(
             l.replayable().is_err(),
             "steps after the cut are not logged"
         );
         assert_eq!(l.len(), 0);
         // a reset of every env with seeds determines the session again
-        l.record(reset(vec![], vec![1, 2]), &obs(0.0));
+        l.record(reset(1), 0, true);
         assert!(l.replayable().is_ok());
         assert_eq!(l.len(), 1);
 
@@ -380,10 +257,10 @@ mod tests {
             ..LogLimits::default()
         });
         for _ in 0..3 {
-            l.record(step(0.0), &obs(0.0));
+            l.record(step(0), 0, false);
         }
         assert!(l.replayable().is_ok());
-        l.record(step(0.0), &obs(0.0));
+        l.record(step(0), 0, false);
         assert!(l.replayable().is_err());
     }
 }

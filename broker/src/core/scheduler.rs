@@ -7,13 +7,14 @@
 //! - Dispatch takes one task from each source with queued tasks in turn
 //!   (round-robin), so a huge batch does not starve a small one submitted after it.
 //! - A task id is answered once: the first result wins, later ones (a worker declared
-//!   dead that was only slow, a requeued copy) are dropped by id.
+//!   dead that was only slow, a requeued copy) are dropped by id. A result counts only
+//!   from a worker the task was handed to.
+//! - Results are whatever the caller keeps (`R`: the broker keeps each task's payload
+//!   frame, undecoded).
 //! - The number of unfinished tasks is bounded, in total and per client; a submission
 //!   over a bound is refused with [`Busy`] rather than queued.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
-
-use paddock_proto::TaskOutcome;
 
 use super::{ClientKey, SourceId, TaskId, WorkerKey};
 
@@ -49,10 +50,10 @@ pub struct Busy {
 }
 
 #[derive(Debug)]
-struct Source {
+struct Source<R> {
     client: ClientKey,
     queue: VecDeque<TaskId>,
-    results: Vec<Option<TaskOutcome>>,
+    results: Vec<Option<R>>,
     done: usize,
 }
 
@@ -62,6 +63,9 @@ struct Task {
     index: usize,
     attempts: u32,
     worker: Option<WorkerKey>,
+    /// Every worker it was handed to (at most `max_attempts`): a result counts only from
+    /// one of them.
+    holders: Vec<WorkerKey>,
 }
 
 /// A task handed to a worker.
@@ -88,11 +92,11 @@ pub enum Completion {
 }
 
 /// See the module documentation.
-#[derive(Debug, Default)]
-pub struct Scheduler {
+#[derive(Debug)]
+pub struct Scheduler<R> {
     pub limits: Limits,
     tasks: HashMap<TaskId, Task>,
-    sources: BTreeMap<SourceId, Source>,
+    sources: BTreeMap<SourceId, Source<R>>,
     /// Sources with queued tasks, in turn order.
     turn: VecDeque<SourceId>,
     per_client: HashMap<ClientKey, usize>,
@@ -100,13 +104,16 @@ pub struct Scheduler {
     next_source: SourceId,
 }
 
-impl Scheduler {
+impl<R> Scheduler<R> {
     pub fn new(limits: Limits) -> Self {
         Self {
             limits,
+            tasks: HashMap::new(),
+            sources: BTreeMap::new(),
+            turn: VecDeque::new(),
+            per_client: HashMap::new(),
             next_task: 1,
             next_source: 1,
-            ..Self::default()
         }
     }
 
@@ -151,6 +158,7 @@ impl Scheduler {
                     index,
                     attempts: 0,
                     worker: None,
+                    holders: Vec::new(),
                 },
             );
             queue.push_back(t);
@@ -164,7 +172,7 @@ impl Scheduler {
             Source {
                 client: client.to_vec(),
                 queue,
-                results: vec![None; n],
+                results: (0..n).map(|_| None).collect(),
                 done: 0,
             },
         );
@@ -189,6 +197,9 @@ impl Scheduler {
                 continue;
             };
             task.worker = Some(worker.to_vec());
+            if !task.holders.iter().any(|h| h == worker) {
+                task.holders.push(worker.to_vec());
+            }
             task.attempts += 1;
             return Some(Assigned {
                 task: t,
@@ -223,8 +234,18 @@ impl Scheduler {
         exhausted
     }
 
-    /// Stores a task's outcome (the first one wins).
-    pub fn complete(&mut self, task: TaskId, outcome: TaskOutcome) -> Completion {
+    /// Stores the outcome `worker` sent for `task` (the first one wins; one from a
+    /// worker the task was never handed to is dropped).
+    pub fn complete_from(&mut self, task: TaskId, worker: &[u8], outcome: R) -> Completion {
+        match self.tasks.get(&task) {
+            Some(t) if t.holders.iter().any(|h| h == worker) => self.complete(task, outcome),
+            _ => Completion::Dropped,
+        }
+    }
+
+    /// Stores a task's outcome (the first one wins), whoever answers (the broker itself
+    /// for a task given up).
+    pub fn complete(&mut self, task: TaskId, outcome: R) -> Completion {
         let Some(t) = self.tasks.remove(&task) else {
             return Completion::Dropped;
         };
@@ -252,17 +273,14 @@ impl Scheduler {
 
     /// The outcomes of a finished source in task order, removing it. None while any
     /// task is open.
-    pub fn take_results(&mut self, source: SourceId) -> Option<(ClientKey, Vec<TaskOutcome>)> {
+    pub fn take_results(&mut self, source: SourceId) -> Option<(ClientKey, Vec<R>)> {
         let src = self.sources.get(&source)?;
         if src.done < src.results.len() {
             return None;
         }
         let src = self.sources.remove(&source)?;
-        let results = src
-            .results
-            .into_iter()
-            .map(Option::unwrap_or_default)
-            .collect();
+        // done == len: every slot holds its result
+        let results = src.results.into_iter().flatten().collect();
         Some((src.client, results))
     }
 
@@ -310,22 +328,15 @@ impl Scheduler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use paddock_proto::task_outcome::Outcome;
 
-    fn ok(seed: u64) -> TaskOutcome {
-        TaskOutcome {
-            outcome: Some(Outcome::Episode(paddock_proto::EpisodeResult {
-                seed,
-                ..Default::default()
-            })),
-        }
+    type Scheduler = super::Scheduler<u64>;
+
+    fn ok(seed: u64) -> u64 {
+        seed
     }
 
-    fn seed_of(o: &TaskOutcome) -> u64 {
-        match &o.outcome {
-            Some(Outcome::Episode(e)) => e.seed,
-            _ => panic!("not an episode"),
-        }
+    fn seed_of(o: &u64) -> u64 {
+        *o
     }
 
     #[test]
@@ -364,6 +375,25 @@ mod tests {
         assert_eq!(s.complete(b.task, ok(2)), Completion::Dropped);
         let (_, r) = s.take_results(src).unwrap();
         assert_eq!(seed_of(&r[0]), 1);
+    }
+
+    #[test]
+    fn results_count_only_from_a_worker_the_task_was_handed_to() {
+        let mut s = Scheduler::new(Limits::default());
+        let src = s.submit(b"c", 1).unwrap();
+        let a = s.next_for(b"w1").unwrap();
+        assert_eq!(
+            s.complete_from(a.task, b"stranger", ok(9)),
+            Completion::Dropped
+        );
+        assert!(s.requeue([a.task]).is_empty());
+        s.next_for(b"w2").unwrap();
+        // the first holder, declared dead but only slow, still counts
+        assert!(matches!(
+            s.complete_from(a.task, b"w1", ok(1)),
+            Completion::Accepted { finished: true, .. }
+        ));
+        assert_eq!(s.take_results(src).unwrap().1, vec![1]);
     }
 
     #[test]

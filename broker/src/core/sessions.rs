@@ -1,29 +1,34 @@
-//! Env sessions: which worker hosts each session, which client owns it, which
-//! forwarded requests wait for a worker's reply, and the rebuilding of a session on
-//! another worker when its worker dies.
+//! Env sessions: which worker hosts each session, which client owns it, which requests
+//! wait for the worker's reply, and the rebuilding of a session on another worker when
+//! its worker dies.
 //!
-//! The broker gives every session its own id (workers number theirs independently)
-//! and every forwarded request its own request id (clients number theirs
-//! independently), and maps both back on the reply.
+//! The broker gives a session its id when the client opens it (an unguessable number the
+//! server draws) and sends that id to the worker, so both ends name the session alike and
+//! nothing in a request or reply is rewritten on the way. A worker answers a session's
+//! requests in the order it got them, so the replies of a session are matched to its
+//! requests first in, first out; the request id the client chose travels to the worker
+//! and back unchanged.
 //!
-//! A session's life: `Live` on its worker; when that worker dies, `Stalled` (its
-//! unanswered requests held, in order) until a live worker is found, then `Replaying`
-//! there (its open and logged requests sent again, each reply checked against the
-//! original, see [`super::replay`]); then `Live` again with the held requests sent.
-//! A session that cannot be replayed, finds no worker within [`LogLimits::wait`] or
-//! whose replay fails is lost.
+//! A session's life: `Opening` until its worker answers the open; `Live`; when its worker
+//! dies, `Stalled` (its unanswered requests held, in order) until a live worker is found,
+//! then `Replaying` there (its open and logged requests sent again, each reply checked
+//! against the original by fingerprint, see [`super::replay`]); then `Live` again with
+//! the held requests sent. A session that cannot be replayed, finds no worker within
+//! [`LogLimits::wait`] or whose replay fails is lost.
 
 use std::collections::{HashMap, VecDeque};
 use std::time::Duration;
 
-use paddock_proto::{Body, EnvOpen};
+use paddock_proto::EnvOp;
 
-use super::replay::{EnvRequest, LogLimits, SessionLog};
+use super::replay::{LogLimits, Logged, SessionLog};
 use super::{ClientKey, WorkerKey};
 
 /// Where a session stands.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SessionState {
+    /// Its open is on the way to its worker.
+    Opening,
     Live,
     /// Its worker is gone; waiting since `since` for a worker to rebuild it on.
     Stalled {
@@ -36,29 +41,15 @@ pub enum SessionState {
     },
 }
 
-/// One open session.
-#[derive(Debug, Clone)]
-pub struct Session {
-    pub client: ClientKey,
-    pub worker: WorkerKey,
-    /// The worker's own id for it.
-    pub worker_session: u64,
-    pub state: SessionState,
-    pub log: SessionLog,
-    /// Client requests held while it is not live, in arrival order.
-    queued: VecDeque<Queued>,
-}
-
-/// What a forwarded request was.
+/// What a request sent to the session's worker was.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Forwarded {
-    /// A client's open, waiting for the worker's session id.
-    Open(EnvOpen),
+pub enum Sent {
+    /// The client's open.
+    Open,
     /// A client's reset or step, logged when answered.
-    Request(EnvRequest),
-    /// A client's request that reads the session without changing it (a render):
-    /// forwarded with the worker's session id, never logged for replay.
-    Read(Body),
+    Change(Logged),
+    /// A client's request that reads the session without changing it (a render).
+    Read,
     Close,
     /// The open of a replay.
     ReplayOpen,
@@ -66,80 +57,99 @@ pub enum Forwarded {
     Replay(usize),
 }
 
-impl Forwarded {
-    /// The message for the worker; `None` for an open (sent as is) or replay.
-    pub fn to_body(&self, worker_session: u64) -> Option<Body> {
-        match self {
-            Forwarded::Request(r) => Some(r.to_body(worker_session)),
-            Forwarded::Read(body) => {
-                let mut body = body.clone();
-                if let Body::EnvRender(r) = &mut body {
-                    r.session_id = worker_session;
-                }
-                Some(body)
-            }
-            Forwarded::Close => Some(Body::EnvClose(paddock_proto::EnvClose {
-                session_id: worker_session,
-            })),
-            _ => None,
-        }
+/// A request sent to a worker and not answered yet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pending {
+    /// The client's request id (0 for a replay's own requests).
+    pub client_request: u64,
+    pub sent: Sent,
+}
+
+/// A client request held while its session is not live: sent when it is live again.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Held {
+    pub client_request: u64,
+    /// The request's op (`paddock_proto::EnvOp`).
+    pub op: i32,
+    pub payload: Vec<u8>,
+}
+
+/// One session.
+#[derive(Debug, Clone)]
+pub struct Session {
+    pub client: ClientKey,
+    pub worker: WorkerKey,
+    pub state: SessionState,
+    pub log: SessionLog,
+    /// Requests sent to the worker, oldest first.
+    pending: VecDeque<Pending>,
+    /// Client requests held while it is not live, in arrival order.
+    held: VecDeque<Held>,
+}
+
+impl Session {
+    /// Requests held while the session is not live.
+    pub fn held(&self) -> usize {
+        self.held.len()
     }
 }
 
-/// A request forwarded to a worker, waiting for its reply.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Pending {
-    pub client: ClientKey,
-    /// The client's request id (0 for a replay's own requests).
-    pub client_request: u64,
-    pub worker: WorkerKey,
-    /// The broker's session id (0 for an open still waiting for its id).
-    pub session: u64,
-    pub what: Forwarded,
-}
-
-/// A client request held while its session is being rebuilt.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Queued {
-    pub client_request: u64,
-    pub what: Forwarded,
-}
-
-/// A session that is gone for good, with the requests that will never be answered.
+/// A session that is gone for good, with the client requests that will never be
+/// answered.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Lost {
     pub session: u64,
     pub client: ClientKey,
     /// Why, for the client ("... was lost: ...").
     pub reason: String,
-    pub queued: Vec<Queued>,
+    pub requests: Vec<u64>,
 }
 
 /// What a dead worker leaves behind.
 #[derive(Debug, Default, PartialEq)]
 pub struct Orphans {
-    /// Sessions lost with it (not replayable).
+    /// Sessions lost with it (not replayable, or still opening).
     pub lost: Vec<Lost>,
     /// Sessions waiting to be rebuilt elsewhere.
     pub stalled: Vec<u64>,
-    /// Requests that will never be answered: opens in flight and requests of lost
-    /// sessions.
-    pub pending: Vec<Pending>,
 }
 
-/// The next move of a replay.
+/// Where a client's request on session `id` goes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Route {
+    /// To this worker, now.
+    Send(WorkerKey),
+    /// Held until the session is live again ([`Sessions::hold`]).
+    Hold,
+    /// No such session for this client.
+    Unknown,
+}
+
+/// What to do with a worker's reply.
 #[derive(Debug, PartialEq)]
-pub enum ReplayStep {
-    /// Send these logged requests (index, message with the worker's session id).
-    Send(Vec<(usize, Body)>),
+pub enum Reply {
+    /// Forward it to `client` under its request id.
+    Forward { client: ClientKey, request: u64 },
     /// A replayed reply checked; more to come.
     Continue,
+    /// Send these logged requests of a replay (index, request).
+    Send(Vec<(usize, Logged)>),
     /// Rebuilt: the session is live again; send these held requests in order.
-    Done(Vec<Queued>),
-    /// Not an answer of a running replay (late, or its session is gone): drop it.
-    Ignore,
+    Done(Vec<Held>),
     /// The replay failed: the session is lost.
     Failed(Lost),
+    /// Not a reply anything waits for (late, from another worker, its session gone).
+    Ignore,
+}
+
+/// The header facts of a worker's reply the sessions need.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReplyHead {
+    pub op: i32,
+    pub fingerprint: u64,
+    pub restart: bool,
+    /// The worker refused the request (`EnvReply.error`), with no payload.
+    pub error: bool,
 }
 
 /// Replay counters, for the broker status.
@@ -154,9 +164,6 @@ pub struct ReplayStats {
 #[derive(Debug, Default)]
 pub struct Sessions {
     sessions: HashMap<u64, Session>,
-    pending: HashMap<u64, Pending>,
-    next_session: u64,
-    next_request: u64,
     limits: LogLimits,
     stats: ReplayStats,
 }
@@ -164,54 +171,40 @@ pub struct Sessions {
 impl Sessions {
     pub fn new(limits: LogLimits) -> Self {
         Self {
-            next_session: 1,
-            next_request: 1,
             limits,
             ..Self::default()
         }
     }
 
-    /// Records a request forwarded to `worker`; returns the request id to use.
-    pub fn forward(&mut self, p: Pending) -> u64 {
-        let id = self.next_request;
-        self.next_request += 1;
-        self.pending.insert(id, p);
-        id
-    }
-
-    /// The waiting request a worker's reply answers (removed), if it came from the
-    /// worker it was sent to.
-    pub fn reply(&mut self, worker: &[u8], request: u64) -> Option<Pending> {
-        match self.pending.get(&request) {
-            Some(p) if p.worker == worker => self.pending.remove(&request),
-            _ => None,
-        }
-    }
-
-    /// Registers a session the worker opened for `open` (of `num_envs` envs); returns
-    /// the broker's id for it.
-    pub fn opened(
+    /// Registers session `id` (drawn by the caller, unused) being opened by `client` on
+    /// `worker` with the open request `open` (its payload), sent under `request`.
+    pub fn open(
         &mut self,
+        id: u64,
         client: ClientKey,
         worker: WorkerKey,
-        worker_session: u64,
-        open: EnvOpen,
-        num_envs: usize,
-    ) -> u64 {
-        let id = self.next_session;
-        self.next_session += 1;
+        open: Vec<u8>,
+        request: u64,
+    ) {
         self.sessions.insert(
             id,
             Session {
                 client,
                 worker,
-                worker_session,
-                state: SessionState::Live,
-                log: SessionLog::new(open, num_envs, self.limits),
-                queued: VecDeque::new(),
+                state: SessionState::Opening,
+                log: SessionLog::new(open, self.limits),
+                pending: VecDeque::from([Pending {
+                    client_request: request,
+                    sent: Sent::Open,
+                }]),
+                held: VecDeque::new(),
             },
         );
-        id
+    }
+
+    /// Whether id `id` names a session (open or being opened).
+    pub fn contains(&self, id: u64) -> bool {
+        self.sessions.contains_key(&id)
     }
 
     /// The session `id` if `client` owns it.
@@ -224,69 +217,192 @@ impl Sessions {
         self.sessions.get(&id)
     }
 
-    /// Logs a request the session's worker answered with `reply`.
-    pub fn record(&mut self, id: u64, request: EnvRequest, reply: &paddock_proto::EnvObservation) {
+    /// Where `client`'s request on session `id` goes.
+    pub fn route(&self, id: u64, client: &[u8]) -> Route {
+        match self.get(id, client) {
+            None => Route::Unknown,
+            Some(s) if s.state == SessionState::Live => Route::Send(s.worker.clone()),
+            Some(_) => Route::Hold,
+        }
+    }
+
+    /// Records a request sent to session `id`'s worker.
+    pub fn sent(&mut self, id: u64, p: Pending) {
         if let Some(s) = self.sessions.get_mut(&id) {
-            s.log.record(request, reply);
+            s.pending.push_back(p);
         }
     }
 
     /// Holds a client request until session `id` is live again.
-    pub fn hold(&mut self, id: u64, q: Queued) {
+    pub fn hold(&mut self, id: u64, h: Held) {
         if let Some(s) = self.sessions.get_mut(&id) {
-            s.queued.push_back(q);
+            s.held.push_back(h);
         }
     }
 
-    pub fn close(&mut self, id: u64) -> Option<Session> {
-        self.sessions.remove(&id)
+    /// What to do with `worker`'s reply on session `id`.
+    pub fn reply(&mut self, id: u64, worker: &[u8], head: ReplyHead) -> Reply {
+        let Some(s) = self.sessions.get_mut(&id) else {
+            return Reply::Ignore;
+        };
+        if s.worker != worker {
+            return Reply::Ignore;
+        }
+        let Some(p) = s.pending.pop_front() else {
+            return Reply::Ignore;
+        };
+        match p.sent {
+            Sent::ReplayOpen | Sent::Replay(_) => self.replay_reply(id, p.sent, head),
+            Sent::Open => {
+                let client = s.client.clone();
+                if head.error {
+                    self.sessions.remove(&id);
+                } else {
+                    s.state = SessionState::Live;
+                }
+                Reply::Forward {
+                    client,
+                    request: p.client_request,
+                }
+            }
+            Sent::Change(request) => {
+                if !head.error {
+                    s.log.record(request, head.fingerprint, head.restart);
+                }
+                Reply::Forward {
+                    client: s.client.clone(),
+                    request: p.client_request,
+                }
+            }
+            Sent::Read => Reply::Forward {
+                client: s.client.clone(),
+                request: p.client_request,
+            },
+            Sent::Close => {
+                let client = s.client.clone();
+                if !head.error {
+                    self.sessions.remove(&id);
+                }
+                Reply::Forward {
+                    client,
+                    request: p.client_request,
+                }
+            }
+        }
     }
 
-    /// Takes in the sessions and requests of a worker that died at `now`: replayable
-    /// sessions wait for another worker with their unanswered requests held; the
-    /// others are lost.
+    fn replay_reply(&mut self, id: u64, sent: Sent, head: ReplyHead) -> Reply {
+        let Some(s) = self.sessions.get_mut(&id) else {
+            return Reply::Ignore;
+        };
+        let SessionState::Replaying { opened, answered } = &mut s.state else {
+            return Reply::Ignore;
+        };
+        let failure = if head.error {
+            Some(format!(
+                "replaying it on another worker failed at {} (the worker refused it)",
+                match sent {
+                    Sent::ReplayOpen => "the open".to_string(),
+                    Sent::Replay(i) => format!("request {} of {}", i + 1, s.log.len()),
+                    _ => "a request".to_string(),
+                }
+            ))
+        } else {
+            match sent {
+                Sent::ReplayOpen if !*opened && head.op == EnvOp::EnvOpen as i32 => {
+                    *opened = true;
+                    if !s.log.is_empty() {
+                        let sends = (0..s.log.len())
+                            .filter_map(|i| s.log.request(i).map(|r| (i, r.clone())))
+                            .collect();
+                        return Reply::Send(sends);
+                    }
+                    None
+                }
+                Sent::Replay(i) if i == *answered => {
+                    if s.log.matches(i, head.fingerprint) {
+                        *answered += 1;
+                        if *answered < s.log.len() {
+                            return Reply::Continue;
+                        }
+                        None
+                    } else {
+                        Some(format!(
+                            "replaying it on another worker gave a different observation at request {} of {} (the workers disagree: different versions?)",
+                            i + 1,
+                            s.log.len()
+                        ))
+                    }
+                }
+                _ => Some(format!(
+                    "replaying it on another worker got an unexpected {} reply",
+                    paddock_proto::op_name(head.op)
+                )),
+            }
+        };
+        match failure {
+            None => {
+                s.state = SessionState::Live;
+                self.stats.replayed += 1;
+                Reply::Done(s.held.drain(..).collect())
+            }
+            Some(why) => {
+                let reason = format!("env session {id} was lost: its worker died and {why}");
+                match self.lose(id, reason) {
+                    Some(lost) => Reply::Failed(lost),
+                    None => Reply::Ignore,
+                }
+            }
+        }
+    }
+
+    /// Takes in the sessions of a worker that died at `now`: replayable sessions wait
+    /// for another worker with their unanswered client requests held; the others (and
+    /// sessions still opening) are lost.
     pub fn worker_gone(&mut self, worker: &[u8], now: Duration) -> Orphans {
         let mut out = Orphans::default();
         let mut ids: Vec<u64> = self
             .sessions
             .iter()
-            .filter(|(_, s)| s.worker == worker)
+            .filter(|(_, s)| s.worker == worker && !matches!(s.state, SessionState::Stalled { .. }))
             .map(|(&id, _)| id)
             .collect();
         ids.sort_unstable();
-        let mut orphaned: Vec<(u64, Pending)> = Vec::new();
-        self.pending.retain(|&rid, p| {
-            if p.worker == worker {
-                orphaned.push((rid, p.clone()));
-                false
-            } else {
-                true
-            }
-        });
-        orphaned.sort_by_key(|(rid, _)| *rid);
         for id in ids {
             let Some(s) = self.sessions.get_mut(&id) else {
                 continue;
             };
+            if s.state == SessionState::Opening {
+                let reason = format!(
+                    "the env session being opened (id {id}) was lost: its worker died before answering"
+                );
+                if let Some(lost) = self.lose(id, reason) {
+                    out.lost.push(lost);
+                }
+                continue;
+            }
             match s.log.replayable() {
                 Ok(()) => {
-                    // requests sent before the death go first, in the order sent
-                    let mut held: VecDeque<Queued> = orphaned
-                        .iter()
-                        .filter(|(_, p)| p.session == id)
-                        .filter(|(_, p)| {
-                            matches!(
-                                p.what,
-                                Forwarded::Request(_) | Forwarded::Read(_) | Forwarded::Close
-                            )
-                        })
-                        .map(|(_, p)| Queued {
-                            client_request: p.client_request,
-                            what: p.what.clone(),
+                    // requests sent before the death go first, in the order sent; a
+                    // replay's own requests are dropped (the replay starts over)
+                    let mut held: VecDeque<Held> = s
+                        .pending
+                        .drain(..)
+                        .filter_map(|p| {
+                            let (op, payload) = match p.sent {
+                                Sent::Change(l) => (l.op, l.payload),
+                                Sent::Read | Sent::Close => (resend_op(&p.sent), Vec::new()),
+                                _ => return None,
+                            };
+                            Some(Held {
+                                client_request: p.client_request,
+                                op,
+                                payload,
+                            })
                         })
                         .collect();
-                    held.extend(s.queued.drain(..));
-                    s.queued = held;
+                    held.extend(s.held.drain(..));
+                    s.held = held;
                     s.state = SessionState::Stalled { since: now };
                     out.stalled.push(id);
                 }
@@ -298,49 +414,47 @@ impl Sessions {
                 }
             }
         }
-        for (_, p) in orphaned {
-            let client_request = matches!(p.what, Forwarded::Open(_))
-                || (matches!(
-                    p.what,
-                    Forwarded::Request(_) | Forwarded::Read(_) | Forwarded::Close
-                ) && !self.sessions.contains_key(&p.session));
-            if client_request {
-                out.pending.push(p);
-            }
-        }
         out
     }
 
-    /// Removes session `id` as lost, with its held requests.
+    /// Removes session `id` as lost, with the client requests it held or had in flight.
     fn lose(&mut self, id: u64, reason: String) -> Option<Lost> {
         let s = self.sessions.remove(&id)?;
-        self.pending.retain(|_, p| {
-            p.session != id || !matches!(p.what, Forwarded::ReplayOpen | Forwarded::Replay(_))
-        });
-        self.stats.lost += 1;
+        if s.state != SessionState::Opening {
+            self.stats.lost += 1;
+        }
+        let mut requests: Vec<u64> = s
+            .pending
+            .iter()
+            .filter(|p| !matches!(p.sent, Sent::ReplayOpen | Sent::Replay(_)))
+            .map(|p| p.client_request)
+            .collect();
+        requests.extend(s.held.iter().map(|h| h.client_request));
         Some(Lost {
             session: id,
             client: s.client,
             reason,
-            queued: s.queued.into(),
+            requests,
         })
     }
 
-    /// Sessions waiting for a worker to be rebuilt on, oldest id first.
+    /// Sessions waiting for a worker to be rebuilt on, oldest first.
     pub fn stalled(&self) -> Vec<u64> {
-        let mut ids: Vec<u64> = self
+        let mut ids: Vec<(Duration, u64)> = self
             .sessions
             .iter()
-            .filter(|(_, s)| matches!(s.state, SessionState::Stalled { .. }))
-            .map(|(&id, _)| id)
+            .filter_map(|(&id, s)| match s.state {
+                SessionState::Stalled { since } => Some((since, id)),
+                _ => None,
+            })
             .collect();
         ids.sort_unstable();
-        ids
+        ids.into_iter().map(|(_, id)| id).collect()
     }
 
-    /// Starts rebuilding stalled session `id` on `worker`: the open to forward there
-    /// (as [`Forwarded::ReplayOpen`]).
-    pub fn start_replay(&mut self, id: u64, worker: WorkerKey) -> Option<EnvOpen> {
+    /// Starts rebuilding stalled session `id` on `worker`: the open request to send there
+    /// (recorded as a replay's open).
+    pub fn start_replay(&mut self, id: u64, worker: WorkerKey) -> Option<Vec<u8>> {
         let s = self.sessions.get_mut(&id)?;
         if !matches!(s.state, SessionState::Stalled { .. }) {
             return None;
@@ -350,68 +464,20 @@ impl Sessions {
             opened: false,
             answered: 0,
         };
-        Some(s.log.open().clone())
+        s.pending = VecDeque::from([Pending {
+            client_request: 0,
+            sent: Sent::ReplayOpen,
+        }]);
+        Some(s.log.open().to_vec())
     }
 
-    /// A worker's answer to a replay request `what` of session `id`.
-    pub fn replay_reply(&mut self, id: u64, what: &Forwarded, reply: &Body) -> ReplayStep {
-        let Some(s) = self.sessions.get_mut(&id) else {
-            return ReplayStep::Ignore;
-        };
-        let SessionState::Replaying { opened, answered } = &mut s.state else {
-            return ReplayStep::Ignore;
-        };
-        let failure = match (what, reply) {
-            (Forwarded::ReplayOpen, Body::EnvOpened(o)) if !*opened => {
-                *opened = true;
-                s.worker_session = o.session_id;
-                if s.log.is_empty() {
-                    None
-                } else {
-                    let wsid = o.session_id;
-                    let sends = (0..s.log.len())
-                        .filter_map(|i| s.log.request(i).map(|r| (i, r.to_body(wsid))))
-                        .collect();
-                    return ReplayStep::Send(sends);
-                }
-            }
-            (Forwarded::Replay(i), Body::EnvObservation(o)) if *i == *answered => {
-                if s.log.matches(*i, o) {
-                    *answered += 1;
-                    if *answered < s.log.len() {
-                        return ReplayStep::Continue;
-                    }
-                    None
-                } else {
-                    Some(format!(
-                        "replaying it on another worker gave a different observation at request {} of {} (the workers disagree: different versions?)",
-                        i + 1,
-                        s.log.len()
-                    ))
-                }
-            }
-            (_, Body::Error(e)) => Some(format!(
-                "replaying it on another worker failed: {} ({})",
-                e.message, e.field
-            )),
-            (_, other) => Some(format!(
-                "replaying it on another worker got an unexpected {}",
-                paddock_proto::body_name(other)
-            )),
-        };
-        match failure {
-            None => {
-                s.state = SessionState::Live;
-                self.stats.replayed += 1;
-                ReplayStep::Done(s.queued.drain(..).collect())
-            }
-            Some(why) => {
-                let reason = format!("env session {id} was lost: its worker died and {why}");
-                match self.lose(id, reason) {
-                    Some(lost) => ReplayStep::Failed(lost),
-                    None => ReplayStep::Ignore,
-                }
-            }
+    /// Records the replay requests sent after a replay's open.
+    pub fn replay_sent(&mut self, id: u64, indices: impl IntoIterator<Item = usize>) {
+        if let Some(s) = self.sessions.get_mut(&id) {
+            s.pending.extend(indices.into_iter().map(|i| Pending {
+                client_request: 0,
+                sent: Sent::Replay(i),
+            }));
         }
     }
 
@@ -459,141 +525,179 @@ impl Sessions {
     }
 }
 
+/// The op a held read or close is sent again with.
+fn resend_op(sent: &Sent) -> i32 {
+    match sent {
+        Sent::Read => EnvOp::EnvRender as i32,
+        _ => EnvOp::EnvClose as i32,
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use paddock_proto::{EnvObservation, EnvOpened, EnvStep, pack_f32, pack_f64};
-
     use super::*;
 
-    fn pending(client: &[u8], rid: u64, worker: &[u8], session: u64, what: Forwarded) -> Pending {
-        Pending {
-            client: client.to_vec(),
-            client_request: rid,
-            worker: worker.to_vec(),
-            session,
-            what,
+    const OPEN: i32 = EnvOp::EnvOpen as i32;
+    const STEP: i32 = EnvOp::EnvStep as i32;
+    const RENDER: i32 = EnvOp::EnvRender as i32;
+
+    fn step(a: u8) -> Logged {
+        Logged {
+            op: STEP,
+            payload: vec![a; 8],
         }
     }
 
-    fn step(a: f32) -> EnvRequest {
-        EnvRequest::Step(EnvStep {
-            session_id: 0,
-            actions: pack_f32(&[0.0, a]),
-            reset_envs: vec![],
-        })
-    }
-
-    fn obs(t: f64) -> EnvObservation {
-        EnvObservation {
-            num_envs: 1,
-            time: pack_f64(&[t]),
-            ..Default::default()
+    fn head(op: i32, fingerprint: u64) -> ReplyHead {
+        ReplyHead {
+            op,
+            fingerprint,
+            restart: false,
+            error: false,
         }
-    }
-
-    fn opened(id: u64) -> Body {
-        Body::EnvOpened(EnvOpened {
-            session_id: id,
-            ..Default::default()
-        })
     }
 
     fn secs(x: f64) -> Duration {
         Duration::from_secs_f64(x)
     }
 
-    #[test]
-    fn replies_route_back_and_a_dead_worker_orphans_its_sessions() {
-        let mut s = Sessions::new(LogLimits::default());
-        let open = Forwarded::Open(EnvOpen::default());
-        let r1 = s.forward(pending(b"c1", 5, b"w1", 0, open.clone()));
-        let r2 = s.forward(pending(b"c2", 5, b"w2", 0, open.clone()));
-        assert_ne!(r1, r2, "equal client request ids do not collide");
-        assert!(
-            s.reply(b"w2", r1).is_none(),
-            "only the asked worker answers"
-        );
-        let p = s.reply(b"w1", r1).expect("w1 answers its own request");
-        assert_eq!(p.client, b"c1");
-        let a = s.opened(b"c1".to_vec(), b"w1".to_vec(), 1, EnvOpen::default(), 1);
-        let b = s.opened(b"c2".to_vec(), b"w2".to_vec(), 1, EnvOpen::default(), 1);
-        assert_ne!(a, b, "workers' equal session ids get distinct broker ids");
-        assert!(s.get(a, b"c2").is_none(), "a session belongs to its client");
+    fn live(s: &mut Sessions, id: u64, client: &[u8], worker: &[u8]) {
+        s.open(id, client.to_vec(), worker.to_vec(), b"open".to_vec(), 1);
         assert_eq!(
-            s.get(a, b"c1").expect("c1 owns session a").worker_session,
-            1
+            s.reply(id, worker, head(OPEN, 0)),
+            Reply::Forward {
+                client: client.to_vec(),
+                request: 1
+            }
         );
-        let orphans = s.worker_gone(b"w2", secs(1.0));
-        assert_eq!(orphans.stalled, vec![b], "a replayable session waits");
-        assert_eq!(orphans.pending.len(), 1, "the open in flight is answered");
-        assert_eq!(s.len(), 2);
-        assert_eq!((s.count_on(b"w1"), s.count_on(b"w2")), (1, 0));
     }
 
-    /// A session with a logged history on w1; w1 dies with one step in flight and a
-    /// second step arrives while the session is stalled.
+    #[test]
+    fn replies_route_back_in_order_and_only_from_the_sessions_worker() {
+        let mut s = Sessions::new(LogLimits::default());
+        live(&mut s, 10, b"c1", b"w1");
+        live(&mut s, 20, b"c2", b"w2");
+        assert_eq!(
+            s.route(10, b"c2"),
+            Route::Unknown,
+            "a session belongs to its client"
+        );
+        assert_eq!(s.route(10, b"c1"), Route::Send(b"w1".to_vec()));
+        s.sent(
+            10,
+            Pending {
+                client_request: 7,
+                sent: Sent::Change(step(1)),
+            },
+        );
+        s.sent(
+            10,
+            Pending {
+                client_request: 8,
+                sent: Sent::Read,
+            },
+        );
+        assert_eq!(
+            s.reply(10, b"w2", head(STEP, 5)),
+            Reply::Ignore,
+            "only its worker answers"
+        );
+        assert_eq!(
+            s.reply(10, b"w1", head(STEP, 5)),
+            Reply::Forward {
+                client: b"c1".to_vec(),
+                request: 7
+            }
+        );
+        assert_eq!(
+            s.reply(10, b"w1", head(RENDER, 9)),
+            Reply::Forward {
+                client: b"c1".to_vec(),
+                request: 8
+            }
+        );
+        assert_eq!(
+            s.reply(10, b"w1", head(STEP, 5)),
+            Reply::Ignore,
+            "nothing waits"
+        );
+        assert_eq!(
+            s.session(10).unwrap().log.len(),
+            1,
+            "the step is logged, the render not"
+        );
+        assert_eq!((s.count_on(b"w1"), s.count_on(b"w2")), (1, 1));
+    }
+
+    #[test]
+    fn a_refused_open_leaves_no_session_and_an_opening_one_dies_with_its_worker() {
+        let mut s = Sessions::new(LogLimits::default());
+        s.open(1, b"c".to_vec(), b"w".to_vec(), vec![], 4);
+        let refused = ReplyHead {
+            error: true,
+            ..head(OPEN, 0)
+        };
+        assert_eq!(
+            s.reply(1, b"w", refused),
+            Reply::Forward {
+                client: b"c".to_vec(),
+                request: 4
+            }
+        );
+        assert!(s.is_empty());
+        s.open(2, b"c".to_vec(), b"w".to_vec(), vec![], 5);
+        let orphans = s.worker_gone(b"w", secs(1.0));
+        assert_eq!(orphans.lost.len(), 1);
+        assert_eq!(orphans.lost[0].requests, vec![5]);
+        assert_eq!(s.stats().lost, 0, "an open never counts as a lost session");
+    }
+
+    /// A session with a logged history on w1; w1 dies with one step and one render in
+    /// flight and a step arrives while the session is stalled.
     fn stalled_session() -> (Sessions, u64) {
         let mut s = Sessions::new(LogLimits::default());
-        let id = s.opened(b"c".to_vec(), b"w1".to_vec(), 7, EnvOpen::default(), 1);
-        for k in 1..=3 {
-            let rid = s.forward(pending(
-                b"c",
-                k,
-                b"w1",
+        let id = 77;
+        live(&mut s, id, b"c", b"w1");
+        for k in 1..=3u8 {
+            s.sent(
                 id,
-                Forwarded::Request(step(k as f32)),
+                Pending {
+                    client_request: u64::from(k) + 1,
+                    sent: Sent::Change(step(k)),
+                },
+            );
+            assert!(matches!(
+                s.reply(id, b"w1", head(STEP, u64::from(k))),
+                Reply::Forward { .. }
             ));
-            let p = s.reply(b"w1", rid).expect("w1 answers the step");
-            let Forwarded::Request(r) = p.what else {
-                panic!("a client request")
-            };
-            s.record(id, r, &obs(0.01 * k as f64));
         }
-        s.forward(pending(b"c", 4, b"w1", id, Forwarded::Request(step(4.0))));
+        s.sent(
+            id,
+            Pending {
+                client_request: 5,
+                sent: Sent::Change(step(4)),
+            },
+        );
+        s.sent(
+            id,
+            Pending {
+                client_request: 6,
+                sent: Sent::Read,
+            },
+        );
         let orphans = s.worker_gone(b"w1", secs(10.0));
         assert_eq!(orphans.stalled, vec![id]);
-        assert!(orphans.pending.is_empty() && orphans.lost.is_empty());
+        assert!(orphans.lost.is_empty());
+        assert_eq!(s.route(id, b"c"), Route::Hold);
         s.hold(
             id,
-            Queued {
-                client_request: 5,
-                what: Forwarded::Request(step(5.0)),
+            Held {
+                client_request: 7,
+                op: STEP,
+                payload: vec![5; 8],
             },
         );
         (s, id)
-    }
-
-    #[test]
-    fn a_render_in_flight_when_its_worker_dies_is_held_and_never_logged() {
-        let mut s = Sessions::new(LogLimits::default());
-        let id = s.opened(b"c".to_vec(), b"w1".to_vec(), 7, EnvOpen::default(), 1);
-        let rid = s.forward(pending(b"c", 1, b"w1", id, Forwarded::Request(step(1.0))));
-        let p = s.reply(b"w1", rid).unwrap();
-        let Forwarded::Request(r) = p.what else {
-            panic!("a client request")
-        };
-        s.record(id, r, &obs(0.01));
-        let render = Forwarded::Read(Body::EnvRender(paddock_proto::EnvRender {
-            session_id: id,
-            envs: vec![0],
-            width: 320,
-        }));
-        // sent with the worker's own session id
-        match render.to_body(7) {
-            Some(Body::EnvRender(r)) => {
-                assert_eq!((r.session_id, r.envs, r.width), (7, vec![0], 320))
-            }
-            other => panic!("{other:?}"),
-        }
-        let rid = s.forward(pending(b"c", 2, b"w1", id, render.clone()));
-        let orphans = s.worker_gone(b"w1", secs(10.0));
-        assert_eq!(orphans.stalled, vec![id]);
-        assert!(orphans.pending.is_empty(), "held, not answered as lost");
-        assert!(s.reply(b"w1", rid).is_none());
-        let session = s.session(id).unwrap();
-        assert_eq!(session.log.len(), 1, "a render is not logged");
-        assert_eq!(session.queued.len(), 1);
-        assert_eq!(session.queued[0].what, render);
     }
 
     #[test]
@@ -601,43 +705,34 @@ mod tests {
         let (mut s, id) = stalled_session();
         assert_eq!(s.stalled(), vec![id]);
         assert!(s.tick(secs(14.9)).is_empty(), "still within the wait");
-        assert!(s.start_replay(id, b"w2".to_vec()).is_some());
+        assert_eq!(
+            s.start_replay(id, b"w2".to_vec()).as_deref(),
+            Some(&b"open"[..])
+        );
         assert!(s.stalled().is_empty());
         assert!(
             s.tick(secs(100.0)).is_empty(),
             "a running replay does not expire"
         );
-        let ReplayStep::Send(sends) = s.replay_reply(id, &Forwarded::ReplayOpen, &opened(3)) else {
+        let Reply::Send(sends) = s.reply(id, b"w2", head(OPEN, 0)) else {
             panic!("the log is sent after the open");
         };
         assert_eq!(sends.len(), 3);
-        for (i, (k, body)) in sends.iter().enumerate() {
-            assert_eq!(*k, i);
-            let Body::EnvStep(st) = body else {
-                panic!("a step")
-            };
-            assert_eq!(st.session_id, 3, "the new worker's session id");
-        }
-        let reply = |t: f64| Body::EnvObservation(obs(t));
-        assert_eq!(
-            s.replay_reply(id, &Forwarded::Replay(0), &reply(0.01)),
-            ReplayStep::Continue
-        );
-        assert_eq!(
-            s.replay_reply(id, &Forwarded::Replay(1), &reply(0.02)),
-            ReplayStep::Continue
-        );
-        let ReplayStep::Done(held) = s.replay_reply(id, &Forwarded::Replay(2), &reply(0.03)) else {
+        assert_eq!(sends[1], (1, step(2)));
+        s.replay_sent(id, sends.iter().map(|(i, _)| *i));
+        assert_eq!(s.reply(id, b"w2", head(STEP, 1)), Reply::Continue);
+        assert_eq!(s.reply(id, b"w2", head(STEP, 2)), Reply::Continue);
+        let Reply::Done(held) = s.reply(id, b"w2", head(STEP, 3)) else {
             panic!("rebuilt");
         };
-        let order: Vec<u64> = held.iter().map(|q| q.client_request).collect();
-        assert_eq!(order, vec![4, 5], "in flight first, then the held one");
-        let live = s.get(id, b"c").expect("the rebuilt session is open");
+        let order: Vec<(u64, i32)> = held.iter().map(|h| (h.client_request, h.op)).collect();
         assert_eq!(
-            (live.worker.as_slice(), live.worker_session),
-            (&b"w2"[..], 3)
+            order,
+            vec![(5, STEP), (6, RENDER), (7, STEP)],
+            "in flight first, then held"
         );
-        assert_eq!(live.state, SessionState::Live);
+        assert_eq!(held[0].payload, step(4).payload);
+        assert_eq!(s.route(id, b"c"), Route::Send(b"w2".to_vec()));
         assert_eq!(
             s.stats(),
             ReplayStats {
@@ -646,8 +741,8 @@ mod tests {
             }
         );
         assert_eq!(
-            s.replay_reply(id, &Forwarded::Replay(2), &reply(0.03)),
-            ReplayStep::Ignore,
+            s.reply(id, b"w2", head(STEP, 3)),
+            Reply::Ignore,
             "a late duplicate is dropped"
         );
     }
@@ -656,10 +751,11 @@ mod tests {
     fn a_replay_that_diverges_or_fails_loses_the_session() {
         let (mut s, id) = stalled_session();
         s.start_replay(id, b"w2".to_vec());
-        s.replay_reply(id, &Forwarded::ReplayOpen, &opened(3));
-        let ReplayStep::Failed(lost) =
-            s.replay_reply(id, &Forwarded::Replay(0), &Body::EnvObservation(obs(0.5)))
-        else {
+        let Reply::Send(sends) = s.reply(id, b"w2", head(OPEN, 0)) else {
+            panic!("sent");
+        };
+        s.replay_sent(id, sends.iter().map(|(i, _)| *i));
+        let Reply::Failed(lost) = s.reply(id, b"w2", head(STEP, 99)) else {
             panic!("a different observation fails the replay");
         };
         assert!(
@@ -669,24 +765,25 @@ mod tests {
             lost.reason
         );
         assert_eq!(
-            lost.queued.len(),
-            2,
+            lost.requests,
+            vec![5, 6, 7],
             "the held requests are answered with the loss"
         );
         assert!(s.get(id, b"c").is_none());
 
         let (mut s, id) = stalled_session();
         s.start_replay(id, b"w2".to_vec());
-        let e = paddock_proto::error(
-            paddock_proto::ErrorCode::NotFound,
-            "env_open.map.hash",
-            "no map",
-        );
-        let ReplayStep::Failed(lost) = s.replay_reply(id, &Forwarded::ReplayOpen, &Body::Error(e))
-        else {
+        let Reply::Failed(lost) = s.reply(
+            id,
+            b"w2",
+            ReplyHead {
+                error: true,
+                ..head(OPEN, 0)
+            },
+        ) else {
             panic!("an error fails the replay");
         };
-        assert!(lost.reason.contains("no map"), "{}", lost.reason);
+        assert!(lost.reason.contains("refused"), "{}", lost.reason);
         assert_eq!(s.stats().lost, 1);
     }
 
@@ -694,22 +791,9 @@ mod tests {
     fn the_replay_worker_dying_too_stalls_the_session_again() {
         let (mut s, id) = stalled_session();
         s.start_replay(id, b"w2".to_vec());
-        let rid = s.forward(pending(b"c", 0, b"w2", id, Forwarded::ReplayOpen));
         let orphans = s.worker_gone(b"w2", secs(12.0));
         assert_eq!(orphans.stalled, vec![id]);
-        assert!(
-            orphans.pending.is_empty(),
-            "replay requests are not the client's"
-        );
-        assert!(s.reply(b"w2", rid).is_none());
-        assert_eq!(
-            s.get(id, b"c")
-                .expect("the stalled session is kept")
-                .queued
-                .len(),
-            2,
-            "held requests kept"
-        );
+        assert_eq!(s.session(id).unwrap().held(), 3, "held requests kept");
         // no third worker within the wait: lost, naming why
         assert!(s.tick(secs(16.9)).is_empty());
         let lost = s.tick(secs(17.0));
@@ -719,7 +803,7 @@ mod tests {
             "{}",
             lost[0].reason
         );
-        assert_eq!(lost[0].queued.len(), 2);
+        assert_eq!(lost[0].requests.len(), 3);
         assert!(s.is_empty());
     }
 
@@ -729,11 +813,24 @@ mod tests {
             max_entries: 2,
             ..LogLimits::default()
         });
-        let id = s.opened(b"c".to_vec(), b"w1".to_vec(), 1, EnvOpen::default(), 1);
+        live(&mut s, 5, b"c", b"w1");
         for k in 0..3 {
-            s.record(id, step(k as f32), &obs(0.0));
+            s.sent(
+                5,
+                Pending {
+                    client_request: 2,
+                    sent: Sent::Change(step(k)),
+                },
+            );
+            s.reply(5, b"w1", head(STEP, 0));
         }
-        let in_flight = s.forward(pending(b"c", 9, b"w1", id, Forwarded::Request(step(9.0))));
+        s.sent(
+            5,
+            Pending {
+                client_request: 9,
+                sent: Sent::Change(step(9)),
+            },
+        );
         let orphans = s.worker_gone(b"w1", secs(1.0));
         assert!(orphans.stalled.is_empty());
         assert_eq!(orphans.lost.len(), 1);
@@ -745,12 +842,10 @@ mod tests {
             orphans.lost[0].reason
         );
         assert_eq!(
-            orphans.pending.len(),
-            1,
+            orphans.lost[0].requests,
+            vec![9],
             "its request in flight is answered"
         );
-        assert_eq!(orphans.pending[0].client_request, 9);
-        assert!(s.reply(b"w1", in_flight).is_none());
         assert_eq!(s.stats().lost, 1);
     }
 }

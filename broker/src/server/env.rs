@@ -1,25 +1,68 @@
-//! Env sessions: opening on a worker, routing reset/step/close and their replies, and
-//! rebuilding a session on another worker when its worker dies (by replaying its log,
-//! see [`crate::core::replay`]), or the errors clients get when that is not possible.
+//! Env sessions: opening on a worker, routing requests and replies, and rebuilding a
+//! session on another worker when its worker dies (by replaying its log, see
+//! [`crate::core::replay`]), or the errors clients get when that is not possible.
+//!
+//! Nothing here decodes a payload. A client's request is `EnvRequest{session_id, op}`
+//! and one payload frame; the broker sends that header and that very frame to the
+//! session's worker. The worker's reply is `EnvReply{session_id, op, fingerprint,
+//! restart}` and its payload frames; the broker forwards the reply's frames to the client
+//! as they came. It keeps a copy of the (small) payload of each open, reset and step for
+//! the replay log, and the fingerprint the worker computed.
 
-use paddock_proto::{Body, EnvClosed, ErrorCode, error};
+use paddock_proto::{Body, EnvOp, EnvReply, EnvRequest, ErrorCode, error};
 
 use super::{Broker, Side, hex};
-use crate::core::{
-    ClientKey, EnvRequest, Forwarded, Lost, Pending, Queued, ReplayStep, SessionState, WorkerKey,
-};
-use crate::jobs::check_map;
+use crate::core::{Held, Logged, Lost, Pending, Reply, ReplyHead, Route, Sent};
+
+const OPEN: i32 = EnvOp::EnvOpen as i32;
+const RESET: i32 = EnvOp::EnvReset as i32;
+const STEP: i32 = EnvOp::EnvStep as i32;
+const RENDER: i32 = EnvOp::EnvRender as i32;
+const CLOSE: i32 = EnvOp::EnvClose as i32;
+
+/// A fresh session id: unguessable, never 0 and not in use.
+fn draw_session_id(taken: impl Fn(u64) -> bool) -> u64 {
+    loop {
+        let mut b = [0u8; 8];
+        if getrandom::fill(&mut b).is_err() {
+            // no OS randomness: still unique, from the clock
+            let t = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(1, |d| d.as_nanos() as u64);
+            b = t.to_le_bytes();
+        }
+        let id = u64::from_le_bytes(b) >> 11; // 53 bits: exact in a JSON or Python float
+        if id != 0 && !taken(id) {
+            return id;
+        }
+    }
+}
 
 impl Broker {
-    pub(super) fn on_env_open(
+    pub(super) fn on_env_request(
         &mut self,
-        client: ClientKey,
+        client: Vec<u8>,
         rid: u64,
-        open: paddock_proto::EnvOpen,
+        req: EnvRequest,
+        payload: Option<zmq::Message>,
     ) {
-        if let Err(e) = check_map(open.map.as_ref(), &self.store, "env_open.map") {
-            return self.refuse(Side::Client, &client, rid, e);
+        match req.op {
+            OPEN => self.on_env_open(client, rid, payload),
+            RESET | STEP | RENDER | CLOSE => self.route_env(client, rid, req, payload),
+            op => self.refuse(
+                Side::Client,
+                &client,
+                rid,
+                error(
+                    ErrorCode::InvalidArgument,
+                    "env_request.op",
+                    format!("env_request.op = {op} is not a known EnvOp"),
+                ),
+            ),
         }
+    }
+
+    fn on_env_open(&mut self, client: Vec<u8>, rid: u64, payload: Option<zmq::Message>) {
         let Some(worker) = self.disp.workers.pick_for_session() else {
             return self.refuse(
                 Side::Client,
@@ -27,59 +70,85 @@ impl Broker {
                 rid,
                 error(
                     ErrorCode::Busy,
-                    "env_open",
+                    "env_request",
                     "no worker is connected to host an env session; retry later",
                 ),
             );
         };
-        let body = Body::EnvOpen(open.clone());
-        self.forward(client, rid, worker, 0, Forwarded::Open(open), body);
+        let sessions = &self.sessions;
+        let lost = &self.lost_sessions;
+        let sid = draw_session_id(|id| sessions.contains(id) || lost.contains_key(&id));
+        let payload = payload.unwrap_or_else(zmq::Message::new);
+        self.sessions
+            .open(sid, client, worker.clone(), payload.to_vec(), rid);
+        if let Some(w) = self.disp.workers.get_mut(&worker) {
+            w.sessions += 1;
+        }
+        self.send_env(&worker, rid, sid, OPEN, Some(payload));
     }
 
-    /// Forwards an env reset, step, close or render to the worker hosting its session, with the
-    /// broker's session id replaced by the worker's; holds it while the session is
-    /// being rebuilt.
-    pub(super) fn route_env(&mut self, client: ClientKey, rid: u64, body: Body) {
-        let (sid, field, what) = match body {
-            Body::EnvReset(r) => (
-                r.session_id,
-                "env_reset.session_id",
-                Forwarded::Request(EnvRequest::Reset(r)),
-            ),
-            Body::EnvStep(s) => (
-                s.session_id,
-                "env_step.session_id",
-                Forwarded::Request(EnvRequest::Step(s)),
-            ),
-            Body::EnvClose(c) => (c.session_id, "env_close.session_id", Forwarded::Close),
-            Body::EnvRender(r) => (
-                r.session_id,
-                "env_render.session_id",
-                Forwarded::Read(Body::EnvRender(r)),
-            ),
-            _ => return,
+    /// Sends a request on session `sid` to `worker`: the header and the payload frame.
+    fn send_env(
+        &mut self,
+        worker: &[u8],
+        rid: u64,
+        sid: u64,
+        op: i32,
+        payload: Option<zmq::Message>,
+    ) {
+        let header = EnvRequest {
+            session_id: sid,
+            op,
         };
-        let route = self.sessions.get(sid, &client).map(|s| {
-            (
-                s.state == SessionState::Live,
-                s.worker.clone(),
-                s.worker_session,
-            )
-        });
-        match route {
-            Some((true, worker, wsid)) => {
-                if let Some(body) = what.to_body(wsid) {
-                    self.forward(client, rid, worker, sid, what, body);
-                }
+        self.send_with(
+            Side::Worker,
+            worker,
+            rid,
+            Body::EnvRequest(header),
+            payload.into_iter().collect(),
+        );
+        self.arm_spin();
+    }
+
+    /// Forwards a reset, step, render or close to the worker hosting its session; holds
+    /// it while the session is being rebuilt.
+    fn route_env(
+        &mut self,
+        client: Vec<u8>,
+        rid: u64,
+        req: EnvRequest,
+        payload: Option<zmq::Message>,
+    ) {
+        let sid = req.session_id;
+        match self.sessions.route(sid, &client) {
+            Route::Send(worker) => {
+                let sent = match req.op {
+                    RESET | STEP => Sent::Change(Logged {
+                        op: req.op,
+                        payload: payload.as_ref().map(|p| p.to_vec()).unwrap_or_default(),
+                    }),
+                    RENDER => Sent::Read,
+                    _ => Sent::Close,
+                };
+                self.sessions.sent(
+                    sid,
+                    Pending {
+                        client_request: rid,
+                        sent,
+                    },
+                );
+                self.send_env(&worker, rid, sid, req.op, payload);
             }
-            Some((false, ..)) => self.sessions.hold(
+            Route::Hold => self.sessions.hold(
                 sid,
-                Queued {
+                Held {
                     client_request: rid,
-                    what,
+                    op: req.op,
+                    payload: payload.map(|p| p.to_vec()).unwrap_or_default(),
                 },
             ),
-            None => {
+            Route::Unknown => {
+                let field = "env_request.session_id";
                 let message = self.lost_sessions.get(&sid).cloned().unwrap_or_else(|| {
                     format!("{field} = {sid}: no such env session is open for this client")
                 });
@@ -93,156 +162,107 @@ impl Broker {
         }
     }
 
-    fn forward(
+    /// A worker's reply on a session: forwarded as it came (header and payload frames)
+    /// to the client that asked, or checked and dropped when it answers a replay.
+    pub(super) fn on_env_reply(
         &mut self,
-        client: ClientKey,
+        worker: Vec<u8>,
         rid: u64,
-        worker: WorkerKey,
-        sid: u64,
-        what: Forwarded,
-        body: Body,
+        reply: EnvReply,
+        payload: Vec<zmq::Message>,
     ) {
-        let fwd = self.sessions.forward(Pending {
-            client,
-            client_request: rid,
-            worker: worker.clone(),
-            session: sid,
-            what,
-        });
-        self.send(Side::Worker, &worker, fwd, body);
-        self.arm_spin();
-    }
-
-    /// A worker's `EnvOpened`, `EnvObservation`, `EnvClosed`, `EnvImage` or `Error` for
-    /// request `rid`.
-    pub(super) fn on_env_reply(&mut self, worker: WorkerKey, rid: u64, body: Body) {
-        let Some(p) = self.sessions.reply(&worker, rid) else {
-            if let Body::Error(e) = &body {
-                tracing::warn!(
-                    peer = %hex(&worker),
-                    code = paddock_proto::code_name(e.code),
-                    field = %e.field,
-                    message = %e.message,
-                    "worker reported an error"
-                );
-            } else {
-                tracing::warn!(peer = %hex(&worker), request_id = rid, "env reply to no pending request dropped");
-            }
-            return;
+        let sid = reply.session_id;
+        let head = ReplyHead {
+            op: reply.op,
+            fingerprint: reply.fingerprint,
+            restart: reply.restart,
+            error: reply.error.is_some(),
         };
-        let body = match (p.what, body) {
-            (what @ (Forwarded::ReplayOpen | Forwarded::Replay(_)), body) => {
-                let step = self.sessions.replay_reply(p.session, &what, &body);
-                return self.on_replay_step(p.session, &p.client, &worker, step);
-            }
-            (_, Body::Error(e)) => {
-                *self
-                    .stats
-                    .errors
-                    .entry(paddock_proto::code_name(e.code).to_string())
-                    .or_default() += 1;
-                Body::Error(e)
-            }
-            (Forwarded::Open(open), Body::EnvOpened(mut o)) => {
-                let sid = self.sessions.opened(
-                    p.client.clone(),
-                    worker.clone(),
-                    o.session_id,
-                    open,
-                    o.num_envs as usize,
-                );
-                if let Some(w) = self.disp.workers.get_mut(&worker) {
-                    w.sessions += 1;
+        match self.sessions.reply(sid, &worker, head) {
+            Reply::Forward { client, request } => {
+                if let Some(e) = &reply.error {
+                    *self
+                        .stats
+                        .errors
+                        .entry(paddock_proto::code_name(e.code).to_string())
+                        .or_default() += 1;
                 }
-                o.session_id = sid;
-                Body::EnvOpened(o)
-            }
-            (Forwarded::Request(request), Body::EnvObservation(mut o)) => {
-                self.sessions.record(p.session, request, &o);
-                o.session_id = p.session;
-                Body::EnvObservation(o)
-            }
-            (Forwarded::Read(_), Body::EnvImage(mut i)) => {
-                i.session_id = p.session;
-                Body::EnvImage(i)
-            }
-            (Forwarded::Close, Body::EnvClosed(_)) => {
-                self.sessions.close(p.session);
-                if let Some(w) = self.disp.workers.get_mut(&worker) {
+                // a refused open or a close ends the session on its worker
+                let ended = (reply.error.is_some() && reply.op == OPEN)
+                    || (reply.error.is_none() && reply.op == CLOSE);
+                if ended && let Some(w) = self.disp.workers.get_mut(&worker) {
                     w.sessions = w.sessions.saturating_sub(1);
                 }
-                Body::EnvClosed(EnvClosed {
-                    session_id: p.session,
-                })
+                self.send_with(
+                    Side::Client,
+                    &client,
+                    request,
+                    Body::EnvReply(reply),
+                    payload,
+                );
+                self.arm_spin();
             }
-            (_, other) => other,
-        };
-        self.send(Side::Client, &p.client, p.client_request, body);
-        self.arm_spin();
-    }
-
-    fn on_replay_step(&mut self, sid: u64, client: &[u8], worker: &[u8], step: ReplayStep) {
-        match step {
-            ReplayStep::Send(requests) => {
-                for (i, body) in requests {
-                    self.forward(
-                        client.to_vec(),
-                        0,
-                        worker.to_vec(),
-                        sid,
-                        Forwarded::Replay(i),
-                        body,
-                    );
+            Reply::Continue => {}
+            Reply::Send(requests) => {
+                let indices: Vec<usize> = requests.iter().map(|(i, _)| *i).collect();
+                self.sessions.replay_sent(sid, indices);
+                for (_, r) in requests {
+                    self.send_env(&worker, 0, sid, r.op, Some(zmq::Message::from(r.payload)));
                 }
             }
-            ReplayStep::Continue | ReplayStep::Ignore => {}
-            ReplayStep::Done(held) => {
+            Reply::Done(held) => {
                 tracing::info!(
                     session = sid,
-                    worker = %hex(worker),
+                    worker = %hex(&worker),
                     held_requests = held.len(),
                     "env session rebuilt on another worker by replay"
                 );
-                for q in held {
-                    self.route_held(client, sid, q);
+                let client = self.sessions.session(sid).map(|s| s.client.clone());
+                if let Some(client) = client {
+                    for h in held {
+                        let payload = (h.op != CLOSE).then(|| zmq::Message::from(h.payload));
+                        let req = EnvRequest {
+                            session_id: sid,
+                            op: h.op,
+                        };
+                        self.route_env(client.clone(), h.client_request, req, payload);
+                    }
                 }
             }
-            ReplayStep::Failed(lost) => {
-                if let Some(w) = self.disp.workers.get_mut(worker) {
+            Reply::Failed(lost) => {
+                if let Some(w) = self.disp.workers.get_mut(&worker) {
                     w.sessions = w.sessions.saturating_sub(1);
                 }
                 self.session_lost(lost);
             }
+            Reply::Ignore => {
+                tracing::debug!(
+                    peer = %hex(&worker),
+                    session = sid,
+                    request_id = rid,
+                    "env reply that nothing waits for dropped"
+                );
+            }
         }
     }
 
-    /// Sends a request held during a replay, now that its session is live again.
-    fn route_held(&mut self, client: &[u8], sid: u64, q: Queued) {
-        let Some((worker, wsid)) = self
-            .sessions
-            .get(sid, client)
-            .map(|s| (s.worker.clone(), s.worker_session))
-        else {
-            return;
-        };
-        if let Some(body) = q.what.to_body(wsid) {
-            self.forward(client.to_vec(), q.client_request, worker, sid, q.what, body);
-        }
-    }
-
-    /// A session gone for good: its held requests are answered with the reason, and
+    /// A session gone for good: its waiting requests are answered with the reason, and
     /// later requests get it as `NOT_FOUND`.
     pub(super) fn session_lost(&mut self, lost: Lost) {
         tracing::warn!(
             session = lost.session,
-            held_requests = lost.queued.len(),
+            requests = lost.requests.len(),
             reason = %lost.reason,
             "env session lost"
         );
         self.lost_sessions.insert(lost.session, lost.reason.clone());
-        for q in lost.queued {
-            let e = error(ErrorCode::Internal, "session_id", lost.reason.clone());
-            self.refuse(Side::Client, &lost.client, q.client_request, e);
+        for rid in lost.requests {
+            let e = error(
+                ErrorCode::Internal,
+                "env_request.session_id",
+                lost.reason.clone(),
+            );
+            self.refuse(Side::Client, &lost.client, rid, e);
         }
     }
 
@@ -259,10 +279,7 @@ impl Broker {
             let Some(open) = self.sessions.start_replay(sid, worker.clone()) else {
                 continue;
             };
-            let (client, steps) = match self.sessions.session(sid) {
-                Some(s) => (s.client.clone(), s.log.len()),
-                None => continue,
-            };
+            let steps = self.sessions.session(sid).map_or(0, |s| s.log.len());
             if let Some(w) = self.disp.workers.get_mut(&worker) {
                 w.sessions += 1;
             }
@@ -272,14 +289,7 @@ impl Broker {
                 requests = steps,
                 "replaying an env session on another worker"
             );
-            self.forward(
-                client,
-                0,
-                worker,
-                sid,
-                Forwarded::ReplayOpen,
-                Body::EnvOpen(open),
-            );
+            self.send_env(&worker, 0, sid, OPEN, Some(zmq::Message::from(open)));
         }
     }
 }

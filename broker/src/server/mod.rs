@@ -1,36 +1,40 @@
-//! The broker process: two ROUTER sockets (clients on the frontend, workers on the
-//! backend) around the sans-IO state machines of [`crate::core`], the job runner of
-//! [`crate::jobs`] and the store of [`crate::state`].
+//! The broker's socket thread: two ROUTER sockets (clients on the frontend, workers on
+//! the backend) around the sans-IO state machines of [`crate::core`], and a link to the
+//! back office ([`crate::office`]) where everything slow happens: job plans, the job
+//! store, maps on disk.
 //!
-//! One thread polls both sockets with a short timeout, so timers (heartbeats, dead
-//! workers, job rounds) run even when nothing arrives. Every refused request gets an
-//! `Error` reply naming the field and value; it is counted by code (see
+//! A message is an Envelope frame and the payload frames its body announces
+//! ([`paddock_proto::payload_frames`]). This thread decodes the Envelope only: env
+//! requests and replies, task results and rollout results pass through as the
+//! `zmq::Message`s they arrived in, never decoded, copied or re-encoded. One thread
+//! polls both sockets and the back office's doorbell with a short timeout, so timers
+//! (heartbeats, dead workers) run even when nothing arrives. Every refused request gets
+//! an `Error` reply naming the field and value; it is counted by code (see
 //! `BrokerStatus.errors`) and logged, and the broker goes on serving everyone else.
 //!
-//! The env-session routing lives in `env.rs`, the job runner in `jobs.rs`, task
-//! dispatch and batch reduction in `tasks.rs`.
+//! The env-session routing lives in `env.rs`, task dispatch and batch reduction in
+//! `tasks.rs`, the traffic with the back office in `office.rs`.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use paddock_libzmq::{Authenticator, Curve};
-use paddock_proto::{
-    Body, BrokerStatus, ErrorCode, JobInfo, JobListing, JobResult, JobState, MapStored,
-    RolloutResult, TaskOutcome, WorkerStatus, WorkerWelcome, code_name, error, task_outcome,
-};
-use prost::Message;
+use paddock_proto::{Body, BrokerStatus, ErrorCode, WorkerStatus, WorkerWelcome, code_name, error};
 
 mod env;
-mod jobs;
+mod office;
 mod tasks;
 
 use crate::core::{
-    ClientKey, Completion, Dispatcher, Limits, Liveness, LogLimits, Sessions, SourceId, WorkerKey,
+    BlobLimits, Blobs, ClientKey, Dispatcher, Limits, Liveness, LogLimits, Sessions, SourceId,
+    WorkerKey,
 };
-use crate::jobs::{JobWork, TaskTemplate};
-use crate::state::{JobRecord, Store, StoreError};
+use crate::office::{Command, Event, Office, OfficeLimits};
+use crate::plan::Planner;
+use crate::state::{Store, StoreError};
 
 /// How to run a broker.
 #[derive(Debug, Clone)]
@@ -46,6 +50,8 @@ pub struct BrokerConfig {
     /// Env-session replay logs: their bounds, and how long a session whose worker died
     /// waits for another worker to be rebuilt on.
     pub session_logs: LogLimits,
+    /// Scenario bytes held for the batches and job rounds in flight.
+    pub blobs: BlobLimits,
     /// Larger frames are answered with TOO_LARGE unread.
     pub max_message_bytes: usize,
     /// Most jobs queued or running at once; more are refused with BUSY.
@@ -92,6 +98,7 @@ impl BrokerConfig {
             liveness: Liveness::default(),
             limits: Limits::default(),
             session_logs: LogLimits::default(),
+            blobs: BlobLimits::default(),
             max_message_bytes: paddock_proto::MAX_MESSAGE_BYTES,
             max_jobs: 1000,
             tick: Duration::from_millis(10),
@@ -114,36 +121,40 @@ pub enum BrokerError {
     },
     #[error(transparent)]
     Store(#[from] StoreError),
+    #[error("starting the back-office thread: {0}")]
+    Thread(std::io::Error),
 }
 
-/// What a source of tasks in the scheduler is for.
-enum SourceOwner {
+/// A task's result as the broker keeps it: the payload frame the worker sent.
+type Outcome = zmq::Message;
+
+/// A job round waiting for room in the queues: the job, its scenarios (hash, bytes) and
+/// tasks.
+type WaitingRound = (
+    String,
+    Vec<(String, Vec<u8>)>,
+    Vec<paddock_proto::RolloutTaskSpec>,
+);
+
+/// What a source of tasks in the scheduler is for, and the scenarios its tasks name.
+struct SourceOwner {
+    kind: OwnerKind,
+    /// Scenario hash of each task (index into `hashes`).
+    tasks: Vec<(u32, u64, u32)>,
+    /// The distinct scenario hashes the source holds a reference on.
+    hashes: Vec<String>,
+}
+
+enum OwnerKind {
     Batch {
         client: ClientKey,
         request_id: u64,
-        tasks: Vec<TaskTemplate>,
         progress: bool,
         last_progress: Instant,
     },
     Job {
         job_id: String,
-        tasks: Vec<TaskTemplate>,
     },
-}
-
-impl SourceOwner {
-    fn task(&self, index: usize) -> &TaskTemplate {
-        match self {
-            SourceOwner::Batch { tasks, .. } | SourceOwner::Job { tasks, .. } => &tasks[index],
-        }
-    }
-}
-
-struct RunningJob {
-    record: JobRecord,
-    work: JobWork,
-    source: Option<SourceId>,
-    watchers: Vec<(ClientKey, u64)>,
 }
 
 #[derive(Default)]
@@ -153,11 +164,12 @@ struct Stats {
     /// Completion times of the last 10 s of tasks.
     recent: VecDeque<Instant>,
     duplicates: u64,
+    jobs_active: u32,
 }
 
 /// Which socket a message came on.
 #[derive(Clone, Copy, PartialEq, Debug)]
-enum Side {
+pub(crate) enum Side {
     Client,
     Worker,
 }
@@ -170,18 +182,27 @@ pub struct Broker {
     _ctx: zmq::Context,
     front: zmq::Socket,
     back: zmq::Socket,
+    /// Rung by the back office when it has events.
+    bell: zmq::Socket,
+    office: Option<Office>,
+    to_office: mpsc::Sender<Command>,
+    from_office: mpsc::Receiver<Event>,
     frontend_endpoint: String,
     backend_endpoint: String,
     /// Poll without blocking until then (armed by env-session traffic).
     spin_until: Option<Instant>,
-    store: Store,
-    disp: Dispatcher,
+    disp: Dispatcher<Outcome>,
     sessions: Sessions,
     /// Sessions lost for good (with their worker, or a failed replay): why, for a
     /// helpful error.
     lost_sessions: HashMap<u64, String>,
     sources: HashMap<SourceId, SourceOwner>,
-    jobs: BTreeMap<String, RunningJob>,
+    /// Source of each job's round in flight.
+    job_sources: HashMap<String, SourceId>,
+    /// Job rounds waiting for room in the queues.
+    waiting_rounds: VecDeque<WaitingRound>,
+    /// Scenario bytes of the sources in flight, by hash.
+    blobs: Blobs<Vec<u8>>,
     stats: Stats,
     started: Instant,
 }
@@ -200,6 +221,7 @@ fn router(
     endpoint: &str,
     what: &'static str,
     curve: &Curve,
+    max_message_bytes: usize,
 ) -> Result<(zmq::Socket, String), BrokerError> {
     let s = ctx
         .socket(zmq::ROUTER)
@@ -208,6 +230,9 @@ fn router(
     s.set_linger(0).map_err(socket_err(what, endpoint))?;
     s.set_sndhwm(100_000).map_err(socket_err(what, endpoint))?;
     s.set_rcvhwm(100_000).map_err(socket_err(what, endpoint))?;
+    // refuse oversized frames at the socket, before they are read into memory
+    s.set_maxmsgsize(i64::try_from(max_message_bytes).unwrap_or(i64::MAX))
+        .map_err(socket_err(what, endpoint))?;
     s.bind(endpoint).map_err(socket_err(what, endpoint))?;
     let bound = s
         .get_last_endpoint()
@@ -216,46 +241,21 @@ fn router(
     Ok((s, bound))
 }
 
-fn job_state(state: JobState) -> i32 {
-    state as i32
-}
-
-fn is_finished(state: i32) -> bool {
-    state == JobState::Succeeded as i32
-        || state == JobState::Failed as i32
-        || state == JobState::CancelledJob as i32
-}
-
-fn info_of(r: &JobRecord) -> JobInfo {
-    JobInfo {
-        job_id: r.id.clone(),
-        name: r.name.clone(),
-        kind: r.kind.clone(),
-        state: r.state,
-        rounds_done: r.rounds_done,
-        rounds_total: r.rounds_total,
-        episodes_done: r.episodes_done,
-        progress_json: r.progress_json.clone(),
-        error: r.error.clone(),
-        created_at: r.created_at,
-        updated_at: r.updated_at,
-    }
-}
-
 impl Broker {
     /// Opens the store in `cfg.state_dir`, binds both sockets and resumes the stored
-    /// unfinished jobs.
-    pub fn bind(cfg: BrokerConfig) -> Result<Self, BrokerError> {
-        Self::bind_in(cfg, zmq::Context::new())
+    /// unfinished jobs with `planner`.
+    pub fn bind(cfg: BrokerConfig, planner: impl Planner) -> Result<Self, BrokerError> {
+        Self::bind_in(cfg, planner, zmq::Context::new())
     }
 
     /// [`Broker::bind`] in the ZeroMQ context `ctx`: workers of this process connect to
     /// [`BrokerConfig::local_backend`] (an `inproc://` endpoint) in the same context.
-    pub fn bind_in(cfg: BrokerConfig, ctx: zmq::Context) -> Result<Self, BrokerError> {
+    pub fn bind_in(
+        cfg: BrokerConfig,
+        planner: impl Planner,
+        ctx: zmq::Context,
+    ) -> Result<Self, BrokerError> {
         let store = Store::open(&cfg.state_dir)?;
-        for bundle in &cfg.maps {
-            store.put_map(bundle)?;
-        }
         // the ZAP handler must be in place before the secured sockets bind
         let (auth, front_curve, back_curve) = match &cfg.security {
             None => (None, Curve::Off, Curve::Off),
@@ -275,13 +275,42 @@ impl Broker {
                 (Some(auth), server("clients"), server("workers"))
             }
         };
+        let max = cfg.max_message_bytes;
         let (front, frontend_endpoint) =
-            router(&ctx, &cfg.frontend, "client endpoint", &front_curve)?;
-        let (back, backend_endpoint) = router(&ctx, &cfg.backend, "worker endpoint", &back_curve)?;
+            router(&ctx, &cfg.frontend, "client endpoint", &front_curve, max)?;
+        let (back, backend_endpoint) =
+            router(&ctx, &cfg.backend, "worker endpoint", &back_curve, max)?;
         if let Some(local) = &cfg.local_backend {
             back.bind(local)
                 .map_err(socket_err("local worker endpoint", local))?;
         }
+        let (to_office, office_rx) = mpsc::channel();
+        let (office_tx, from_office) = mpsc::channel();
+        let bell_endpoint = format!("inproc://paddock-office-{}", office_doorbell_seq());
+        let bell = ctx
+            .socket(zmq::PULL)
+            .map_err(socket_err("doorbell", &bell_endpoint))?;
+        bell.bind(&bell_endpoint)
+            .map_err(socket_err("doorbell", &bell_endpoint))?;
+        let ringer = ctx
+            .socket(zmq::PUSH)
+            .map_err(socket_err("doorbell", &bell_endpoint))?;
+        ringer
+            .connect(&bell_endpoint)
+            .map_err(socket_err("doorbell", &bell_endpoint))?;
+        let limits = OfficeLimits {
+            max_jobs: cfg.max_jobs,
+            max_round_tasks: cfg.limits.max_tasks_per_client.min(cfg.limits.max_tasks),
+        };
+        let office = Office::start(
+            Box::new(planner),
+            store,
+            &cfg.maps,
+            limits,
+            office_rx,
+            office_tx,
+            ringer,
+        )?;
         let mut disp = Dispatcher::new(cfg.liveness, cfg.limits);
         // task ids from the clock (microseconds x 4096): a late result for a task of
         // an earlier run of this broker can never match a task of this one
@@ -290,30 +319,34 @@ impl Broker {
             .map_or(0, |d| d.as_micros() as u64);
         disp.tasks.set_first_task_id(micros.saturating_mul(4096));
         let session_logs = cfg.session_logs;
-        let mut b = Self {
+        let blobs = Blobs::new(cfg.blobs);
+        let b = Self {
             disp,
             cfg,
             _auth: auth,
             _ctx: ctx,
             front,
             back,
+            bell,
+            office: Some(office),
+            to_office,
+            from_office,
             frontend_endpoint,
             backend_endpoint,
             spin_until: None,
-            store,
             sessions: Sessions::new(session_logs),
             lost_sessions: HashMap::new(),
             sources: HashMap::new(),
-            jobs: BTreeMap::new(),
+            job_sources: HashMap::new(),
+            waiting_rounds: VecDeque::new(),
+            blobs,
             stats: Stats::default(),
             started: Instant::now(),
         };
-        b.resume_jobs()?;
         tracing::info!(
             frontend = %b.frontend_endpoint,
             backend = %b.backend_endpoint,
             state = %b.cfg.state_dir.display(),
-            jobs_resumed = b.jobs.len(),
             "broker listening"
         );
         Ok(b)
@@ -329,7 +362,8 @@ impl Broker {
         &self.backend_endpoint
     }
 
-    /// Serves until `stop` is set; then tells the workers goodbye.
+    /// Serves until `stop` is set; then tells the workers goodbye and stops the back
+    /// office (which finishes what it was doing: a job round being stored is stored).
     pub fn run(&mut self, stop: &AtomicBool) -> Result<(), BrokerError> {
         while !stop.load(Ordering::Relaxed) {
             self.poll_once(self.cfg.tick)?;
@@ -345,32 +379,46 @@ impl Broker {
                 }),
             );
         }
+        self.stop_office();
         Ok(())
+    }
+
+    fn stop_office(&mut self) {
+        if let Some(office) = self.office.take() {
+            let _ = self.to_office.send(Command::Stop);
+            office.join();
+        }
     }
 
     /// Waits up to `timeout` for messages, handles everything that arrived, then runs
     /// the timers and dispatches. (`run` calls this in a loop; tests may drive it.)
     pub fn poll_once(&mut self, timeout: Duration) -> Result<(), BrokerError> {
-        let (front_ready, back_ready) = self.wait(timeout)?;
+        let (front_ready, back_ready, bell_ready) = self.wait(timeout)?;
         // bounded drains keep one busy side from starving the other
         if back_ready {
             for _ in 0..1000 {
-                match self.back.recv_multipart(zmq::DONTWAIT) {
-                    Ok(parts) => self.on_frames(Side::Worker, parts),
-                    Err(_) => break,
+                match recv_parts(&self.back) {
+                    Some(parts) => self.on_frames(Side::Worker, parts),
+                    None => break,
                 }
             }
         }
         if front_ready {
             for _ in 0..1000 {
-                match self.front.recv_multipart(zmq::DONTWAIT) {
-                    Ok(parts) => self.on_frames(Side::Client, parts),
-                    Err(_) => break,
+                match recv_parts(&self.front) {
+                    Some(parts) => self.on_frames(Side::Client, parts),
+                    None => break,
                 }
             }
         }
+        if bell_ready {
+            while self.bell.recv_bytes(zmq::DONTWAIT).is_ok() {}
+        }
+        while let Ok(event) = self.from_office.try_recv() {
+            self.on_office(event);
+        }
         self.on_timers();
-        self.pump_jobs();
+        self.queue_waiting_rounds();
         self.dispatch();
         Ok(())
     }
@@ -381,11 +429,11 @@ impl Broker {
 
     /// Whether each socket has a message: polls without blocking while the spin is
     /// armed, then waits up to `timeout`.
-    fn wait(&mut self, timeout: Duration) -> Result<(bool, bool), BrokerError> {
+    fn wait(&mut self, timeout: Duration) -> Result<(bool, bool, bool), BrokerError> {
         if let Some(until) = self.spin_until.take() {
             loop {
                 let ready = self.poll_sockets(0)?;
-                if ready.0 || ready.1 {
+                if ready.0 || ready.1 || ready.2 {
                     return Ok(ready);
                 }
                 if Instant::now() >= until {
@@ -398,14 +446,19 @@ impl Broker {
         self.poll_sockets(timeout.as_millis() as i64)
     }
 
-    fn poll_sockets(&self, timeout_ms: i64) -> Result<(bool, bool), BrokerError> {
+    fn poll_sockets(&self, timeout_ms: i64) -> Result<(bool, bool, bool), BrokerError> {
         let mut items = [
             self.front.as_poll_item(zmq::POLLIN),
             self.back.as_poll_item(zmq::POLLIN),
+            self.bell.as_poll_item(zmq::POLLIN),
         ];
         match zmq::poll(&mut items, timeout_ms) {
-            Ok(_) => Ok((items[0].is_readable(), items[1].is_readable())),
-            Err(zmq::Error::EINTR) => Ok((false, false)),
+            Ok(_) => Ok((
+                items[0].is_readable(),
+                items[1].is_readable(),
+                items[2].is_readable(),
+            )),
+            Err(zmq::Error::EINTR) => Ok((false, false, false)),
             Err(e) => Err(BrokerError::Socket {
                 what: "poll",
                 endpoint: self.frontend_endpoint.clone(),
@@ -423,12 +476,26 @@ impl Broker {
 
     // ------------------------------------------------------------------ sending
 
-    fn send_raw(&mut self, side: Side, peer: &[u8], payload: Vec<u8>) {
+    /// Sends `[peer, frames...]`, the frames moved into the socket (no copy).
+    fn send_frames(&mut self, side: Side, peer: &[u8], frames: Vec<zmq::Message>) {
         let socket = match side {
             Side::Client => &self.front,
             Side::Worker => &self.back,
         };
-        if let Err(e) = socket.send_multipart([peer.to_vec(), payload], zmq::DONTWAIT) {
+        let n = frames.len();
+        let mut result = socket.send(peer, zmq::SNDMORE | zmq::DONTWAIT);
+        for (i, f) in frames.into_iter().enumerate() {
+            if result.is_err() {
+                break;
+            }
+            let flags = if i + 1 < n {
+                zmq::SNDMORE | zmq::DONTWAIT
+            } else {
+                zmq::DONTWAIT
+            };
+            result = socket.send(f, flags);
+        }
+        if let Err(e) = result {
             tracing::warn!(?side, error = %e, "send failed; message dropped");
         }
         if side == Side::Worker {
@@ -438,8 +505,22 @@ impl Broker {
     }
 
     fn send(&mut self, side: Side, peer: &[u8], request_id: u64, body: Body) {
-        let frame = paddock_proto::encode(request_id, body);
-        self.send_raw(side, peer, frame);
+        self.send_with(side, peer, request_id, body, Vec::new());
+    }
+
+    /// Sends an Envelope and its payload frames.
+    fn send_with(
+        &mut self,
+        side: Side,
+        peer: &[u8],
+        request_id: u64,
+        body: Body,
+        payload: Vec<zmq::Message>,
+    ) {
+        let mut frames = Vec::with_capacity(1 + payload.len());
+        frames.push(zmq::Message::from(paddock_proto::encode(request_id, body)));
+        frames.extend(payload);
+        self.send_frames(side, peer, frames);
     }
 
     /// Sends an error reply, counting and logging it.
@@ -460,48 +541,51 @@ impl Broker {
 
     // ------------------------------------------------------------------ receiving
 
-    fn on_frames(&mut self, side: Side, mut parts: Vec<Vec<u8>>) {
-        if parts.is_empty() {
+    fn on_frames(&mut self, side: Side, mut parts: Vec<zmq::Message>) {
+        if parts.len() < 2 {
             return;
         }
-        let peer = parts.remove(0);
-        // a DEALER sends [payload]; a REQ-style peer [empty, payload]
-        if parts.len() == 2 && parts[0].is_empty() {
-            parts.remove(0);
-        }
-        if parts.len() != 1 {
-            let n = parts.len();
-            self.refuse(
-                side,
-                &peer,
-                0,
-                error(
-                    ErrorCode::BadMessage,
-                    "",
-                    format!("expected one frame holding an Envelope, got {n} frames"),
-                ),
-            );
-            return;
-        }
-        let frame = parts.pop().unwrap_or_default();
+        let peer: Vec<u8> = parts.remove(0).to_vec();
         if side == Side::Worker {
             let now = self.now();
             self.disp.workers.seen(&peer, now);
         }
-        if frame.len() > self.cfg.max_message_bytes {
+        let mut payload = parts.split_off(1);
+        let Some(header) = parts.pop() else {
+            return;
+        };
+        if header.len() > self.cfg.max_message_bytes {
             let e = paddock_proto::ProtoError::TooLarge {
-                size: frame.len(),
+                size: header.len(),
                 limit: self.cfg.max_message_bytes,
             };
             self.refuse(side, &peer, 0, e.to_error());
             return;
         }
-        match paddock_proto::decode(&frame) {
-            Ok((rid, body)) => match side {
-                Side::Client => self.on_client(peer, rid, body),
-                Side::Worker => self.on_worker(peer, rid, body),
-            },
-            Err((rid, e)) => self.refuse(side, &peer, rid, e.to_error()),
+        let (rid, body) = match paddock_proto::decode(&header) {
+            Ok(x) => x,
+            Err((rid, e)) => return self.refuse(side, &peer, rid, e.to_error()),
+        };
+        let want = paddock_proto::payload_frames(&body);
+        if payload.len() != want {
+            let name = paddock_proto::body_name(&body);
+            return self.refuse(
+                side,
+                &peer,
+                rid,
+                error(
+                    ErrorCode::BadMessage,
+                    "",
+                    format!(
+                        "{name} is followed by {want} payload frame(s), this message has {}",
+                        payload.len()
+                    ),
+                ),
+            );
+        }
+        match side {
+            Side::Client => self.on_client(peer, rid, body, &mut payload),
+            Side::Worker => self.on_worker(peer, rid, body, &mut payload),
         }
     }
 
@@ -523,146 +607,53 @@ impl Broker {
         );
     }
 
-    fn on_client(&mut self, client: ClientKey, rid: u64, body: Body) {
+    fn on_client(
+        &mut self,
+        client: ClientKey,
+        rid: u64,
+        body: Body,
+        payload: &mut Vec<zmq::Message>,
+    ) {
         match body {
             Body::RolloutBatch(b) => self.on_batch(client, rid, b),
-            Body::PutMap(p) => self.on_put_map(client, rid, p),
             Body::StatusRequest(_) => {
                 let status = self.status();
                 self.send(Side::Client, &client, rid, Body::BrokerStatus(status));
             }
-            Body::EnvOpen(o) => self.on_env_open(client, rid, o),
-            body @ (Body::EnvReset(_)
-            | Body::EnvStep(_)
-            | Body::EnvClose(_)
-            | Body::EnvRender(_)) => self.route_env(client, rid, body),
-            Body::JobSubmit(s) => self.on_job_submit(client, rid, s),
-            Body::JobStatus(r) => {
-                if let Some(rec) = self.job_record(&client, rid, &r.job_id, "job_status.job_id") {
-                    self.send(Side::Client, &client, rid, Body::JobInfo(info_of(&rec)));
-                }
-            }
-            Body::JobList(_) => match self.store.jobs() {
-                Ok(jobs) => {
-                    let jobs = jobs
-                        .iter()
-                        .map(|r| match self.jobs.get(&r.id) {
-                            Some(j) => info_of(&j.record),
-                            None => info_of(r),
-                        })
-                        .collect();
-                    self.send(
-                        Side::Client,
-                        &client,
-                        rid,
-                        Body::JobListing(JobListing { jobs }),
-                    );
-                }
-                Err(e) => self.refuse(
-                    Side::Client,
-                    &client,
-                    rid,
-                    error(ErrorCode::Internal, "job_list", e.to_string()),
-                ),
-            },
-            Body::JobCancel(c) => self.on_job_cancel(client, rid, &c.job_id),
-            Body::JobResultRequest(r) => {
-                if let Some(rec) =
-                    self.job_record(&client, rid, &r.job_id, "job_result_request.job_id")
-                {
-                    let rollouts = if rec.result_bin.is_empty() {
-                        None
-                    } else {
-                        RolloutResult::decode(rec.result_bin.as_slice()).ok()
-                    };
-                    let reply = JobResult {
-                        info: Some(info_of(&rec)),
-                        result_json: rec.result_json.clone(),
-                        rollouts,
-                    };
-                    self.send(Side::Client, &client, rid, Body::JobResult(reply));
-                }
-            }
-            Body::JobWatch(w) => {
-                if let Some(rec) = self.job_record(&client, rid, &w.job_id, "job_watch.job_id") {
-                    self.send(Side::Client, &client, rid, Body::JobInfo(info_of(&rec)));
-                    if let Some(j) = self.jobs.get_mut(&w.job_id) {
-                        j.watchers.push((client, rid));
-                    }
-                }
-            }
+            Body::EnvRequest(r) => self.on_env_request(client, rid, r, payload.pop()),
+            Body::PutMap(p) => self.tell_office(Command::PutMap {
+                client,
+                rid,
+                put: p,
+            }),
+            Body::PutBlob(p) => self.tell_office(Command::PutBlob {
+                client,
+                rid,
+                data: p.data,
+            }),
+            body @ (Body::JobSubmit(_)
+            | Body::JobStatus(_)
+            | Body::JobList(_)
+            | Body::JobCancel(_)
+            | Body::JobResultRequest(_)
+            | Body::JobWatch(_)) => self.tell_office(Command::Job { client, rid, body }),
             other => self.wrong_socket(Side::Client, &client, rid, &other),
         }
     }
 
-    fn on_worker(&mut self, worker: WorkerKey, rid: u64, body: Body) {
+    fn on_worker(
+        &mut self,
+        worker: WorkerKey,
+        rid: u64,
+        body: Body,
+        payload: &mut Vec<zmq::Message>,
+    ) {
         let known = self.disp.workers.get(&worker).is_some();
         match body {
-            Body::WorkerHello(h) => {
-                let now = self.now();
-                match self.disp.workers.hello(worker.clone(), &h, now) {
-                    Ok(old) => {
-                        tracing::info!(
-                            worker_id = %h.worker_id,
-                            hostname = %h.hostname,
-                            capacity = h.capacity,
-                            "worker joined"
-                        );
-                        if !old.is_empty() {
-                            let r = self.disp.requeue(old);
-                            self.fail_exhausted(r.exhausted);
-                        }
-                        let welcome = WorkerWelcome {
-                            heartbeat_ms: self.cfg.liveness.interval.as_millis() as u32,
-                            liveness: self.cfg.liveness.liveness,
-                        };
-                        self.send(Side::Worker, &worker, rid, Body::WorkerWelcome(welcome));
-                    }
-                    Err(e) => {
-                        let field = match e {
-                            crate::core::workers::HelloError::Capacity(_) => {
-                                "worker_hello.capacity"
-                            }
-                            crate::core::workers::HelloError::EmptyId => "worker_hello.worker_id",
-                        };
-                        self.refuse(
-                            Side::Worker,
-                            &worker,
-                            rid,
-                            error(ErrorCode::InvalidArgument, field, e.to_string()),
-                        );
-                    }
-                }
-            }
+            Body::WorkerHello(h) => self.on_hello(worker, rid, &h),
             Body::TaskResult(r) => {
-                // a result is accepted even from a worker declared dead: the first wins
-                let outcome = r.outcome.unwrap_or_else(|| TaskOutcome {
-                    outcome: Some(task_outcome::Outcome::Error(error(
-                        ErrorCode::BadMessage,
-                        "task_result.outcome",
-                        "the worker sent a result without an outcome",
-                    ))),
-                });
-                match self.disp.result(&worker, r.task_id, outcome) {
-                    Completion::Accepted {
-                        source,
-                        done,
-                        total,
-                        finished,
-                        ..
-                    } => {
-                        self.stats.tasks_done += 1;
-                        self.stats.recent.push_back(Instant::now());
-                        if finished {
-                            self.finish_source(source);
-                        } else {
-                            self.maybe_progress(source, done, total);
-                        }
-                    }
-                    Completion::Dropped => {
-                        self.stats.duplicates += 1;
-                        tracing::debug!(task_id = r.task_id, "late duplicate result dropped");
-                    }
+                if let Some(outcome) = payload.pop() {
+                    self.on_task_result(&worker, r.task_id, outcome);
                 }
                 if !known {
                     self.unknown_worker(&worker, rid);
@@ -673,43 +664,66 @@ impl Broker {
                     self.unknown_worker(&worker, rid);
                 }
             }
-            Body::MapRequest(m) => match self.store.map_bundle(&m.hash) {
-                Ok(Some(bundle)) => {
-                    if let Some(w) = self.disp.workers.get_mut(&worker) {
-                        w.maps.insert(m.hash.clone());
-                    }
-                    self.send(Side::Worker, &worker, rid, Body::MapBundle(bundle));
-                }
-                Ok(None) => self.refuse(
-                    Side::Worker,
-                    &worker,
-                    rid,
-                    error(
-                        ErrorCode::NotFound,
-                        "map_request.hash",
-                        format!("map hash {:?} is not stored in this broker", m.hash),
-                    ),
-                ),
-                Err(e) => self.refuse(
-                    Side::Worker,
-                    &worker,
-                    rid,
-                    error(ErrorCode::Internal, "map_request.hash", e.to_string()),
-                ),
-            },
+            Body::MapRequest(m) => self.tell_office(Command::MapRequest {
+                worker,
+                rid,
+                hash: m.hash,
+            }),
+            Body::BlobRequest(b) => self.on_blob_request(worker, rid, b.hash),
             Body::Bye(b) => {
                 tracing::info!(peer = %hex(&worker), reason = %b.reason, "worker left");
                 if let Some(info) = self.disp.workers.remove(&worker) {
                     self.worker_gone(&worker, info.in_flight.into_iter().collect(), "left");
                 }
             }
-            Body::EnvOpened(o) => self.on_env_reply(worker, rid, Body::EnvOpened(o)),
-            Body::EnvObservation(o) => self.on_env_reply(worker, rid, Body::EnvObservation(o)),
-            Body::EnvClosed(c) => self.on_env_reply(worker, rid, Body::EnvClosed(c)),
-            Body::EnvImage(i) => self.on_env_reply(worker, rid, Body::EnvImage(i)),
-            // an error from a worker answers a forwarded env request, if any
-            Body::Error(e) => self.on_env_reply(worker, rid, Body::Error(e)),
+            Body::EnvReply(r) => self.on_env_reply(worker, rid, r, std::mem::take(payload)),
+            Body::Error(e) => {
+                // a worker's error answers something of ours (a blob or map it could
+                // not use): logged, nothing waits for it
+                tracing::warn!(
+                    peer = %hex(&worker),
+                    code = code_name(e.code),
+                    field = %e.field,
+                    message = %e.message,
+                    "worker reported an error"
+                );
+            }
             other => self.wrong_socket(Side::Worker, &worker, rid, &other),
+        }
+    }
+
+    fn on_hello(&mut self, worker: WorkerKey, rid: u64, h: &paddock_proto::WorkerHello) {
+        let now = self.now();
+        match self.disp.workers.hello(worker.clone(), h, now) {
+            Ok(old) => {
+                tracing::info!(
+                    worker_id = %h.worker_id,
+                    hostname = %h.hostname,
+                    capacity = h.capacity,
+                    "worker joined"
+                );
+                if !old.is_empty() {
+                    let r = self.disp.requeue(old);
+                    self.fail_exhausted(r.exhausted);
+                }
+                let welcome = WorkerWelcome {
+                    heartbeat_ms: self.cfg.liveness.interval.as_millis() as u32,
+                    liveness: self.cfg.liveness.liveness,
+                };
+                self.send(Side::Worker, &worker, rid, Body::WorkerWelcome(welcome));
+            }
+            Err(e) => {
+                let field = match e {
+                    crate::core::workers::HelloError::Capacity(_) => "worker_hello.capacity",
+                    crate::core::workers::HelloError::EmptyId => "worker_hello.worker_id",
+                };
+                self.refuse(
+                    Side::Worker,
+                    &worker,
+                    rid,
+                    error(ErrorCode::InvalidArgument, field, e.to_string()),
+                );
+            }
         }
     }
 
@@ -763,7 +777,7 @@ impl Broker {
     }
 
     /// Cleans up after a worker that left or died: requeues `tasks` (when it was not
-    /// done already) and fails its env sessions.
+    /// done already) and stalls or loses its env sessions.
     fn worker_gone(&mut self, worker: &[u8], tasks: Vec<u64>, how: &str) {
         if !tasks.is_empty() {
             let r = self.disp.requeue(tasks);
@@ -780,62 +794,7 @@ impl Broker {
                 "env session's worker {how}: it waits to be replayed on another worker"
             );
         }
-        for p in orphans.pending {
-            let what = if p.session == 0 {
-                "the env session being opened".to_string()
-            } else {
-                format!("env session {}", p.session)
-            };
-            let e = error(
-                ErrorCode::Internal,
-                "session_id",
-                format!("{what} was lost: its worker {how} before answering"),
-            );
-            self.refuse(Side::Client, &p.client, p.client_request, e);
-        }
         self.resume_sessions();
-    }
-
-    // ------------------------------------------------------------------ maps
-
-    fn on_put_map(&mut self, client: ClientKey, rid: u64, p: paddock_proto::PutMap) {
-        let Some(bundle) = p.bundle else {
-            return self.refuse(
-                Side::Client,
-                &client,
-                rid,
-                error(
-                    ErrorCode::InvalidArgument,
-                    "put_map.bundle",
-                    "put_map needs a bundle",
-                ),
-            );
-        };
-        if let Err(e) = paddock_proto::check_bundle(&bundle) {
-            return self.refuse(
-                Side::Client,
-                &client,
-                rid,
-                paddock_proto::convert::with_prefix(e, "put_map"),
-            );
-        }
-        match self.store.put_map(&bundle) {
-            Ok(()) => {
-                tracing::info!(name = %bundle.name, hash = %bundle.hash, "map stored");
-                self.send(
-                    Side::Client,
-                    &client,
-                    rid,
-                    Body::MapStored(MapStored { hash: bundle.hash }),
-                );
-            }
-            Err(e) => self.refuse(
-                Side::Client,
-                &client,
-                rid,
-                error(ErrorCode::Internal, "put_map.bundle", e.to_string()),
-            ),
-        }
     }
 
     // ------------------------------------------------------------------ status
@@ -863,7 +822,7 @@ impl Broker {
             tasks_in_flight: self.disp.workers.in_flight() as u64,
             tasks_per_s: self.stats.recent.len() as f64 / window,
             tasks_done: self.stats.tasks_done,
-            jobs_running: self.jobs.len() as u32,
+            jobs_running: self.stats.jobs_active,
             env_sessions: self.sessions.len() as u32,
             sessions_replayed: self.sessions.stats().replayed,
             sessions_lost: self.sessions.stats().lost,
@@ -871,7 +830,10 @@ impl Broker {
                 .cfg
                 .maps
                 .iter()
-                .map(paddock_proto::convert::map_ref)
+                .map(|b| paddock_proto::MapRef {
+                    name: b.name.clone(),
+                    hash: b.hash.clone(),
+                })
                 .collect(),
             errors: self
                 .stats
@@ -884,6 +846,40 @@ impl Broker {
     }
 }
 
-fn hex(b: &[u8]) -> String {
+impl Drop for Broker {
+    fn drop(&mut self) {
+        self.stop_office();
+    }
+}
+
+/// The frames of one message, each as the `zmq::Message` it arrived in; None when
+/// nothing waits.
+fn recv_parts(socket: &zmq::Socket) -> Option<Vec<zmq::Message>> {
+    let first = socket.recv_msg(zmq::DONTWAIT).ok()?;
+    let mut more = first.get_more();
+    let mut parts = vec![first];
+    while more {
+        match socket.recv_msg(0) {
+            Ok(m) => {
+                more = m.get_more();
+                parts.push(m);
+            }
+            Err(_) => break,
+        }
+    }
+    Some(parts)
+}
+
+/// A name for a broker's doorbell endpoint, unique in the process.
+fn office_doorbell_seq() -> String {
+    static SEQ: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    format!(
+        "{}-{}",
+        std::process::id(),
+        SEQ.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+pub(crate) fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }

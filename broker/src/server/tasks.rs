@@ -1,15 +1,19 @@
-//! Rollout tasks: handing queued tasks to workers, progress, and the reduction of a
-//! finished batch or job round; tasks given up after repeated worker deaths.
+//! Rollout tasks: queuing checked batches and job rounds, handing tasks to workers (a
+//! task names its scenario by hash; a worker fetches each scenario once), progress, and
+//! the reduction of a finished batch or round: its outcome frames, untouched, in task
+//! order. Tasks given up after repeated worker deaths get an error outcome.
 
 use std::time::{Duration, Instant};
 
 use paddock_proto::{
-    Body, ErrorCode, RolloutProgress, RolloutResult, TaskAssign, TaskOutcome, error, task_outcome,
+    Body, ErrorCode, RolloutProgress, RolloutResult, RolloutTaskSpec, TaskAssign, TaskOutcome,
+    error, task_outcome,
 };
+use prost::Message;
 
-use super::{Broker, Side, SourceOwner};
+use super::{Broker, OwnerKind, Side, SourceOwner, hex};
 use crate::core::{Assigned, ClientKey, Completion, SourceId};
-use crate::jobs::{batch_tasks, check_batch};
+use crate::office::Command;
 
 impl Broker {
     pub(super) fn fail_exhausted(&mut self, tasks: Vec<u64>) {
@@ -23,18 +27,17 @@ impl Broker {
                 ))),
             };
             *self.stats.errors.entry("INTERNAL".into()).or_default() += 1;
+            let frame = zmq::Message::from(outcome.encode_to_vec());
             if let Completion::Accepted {
                 source,
                 finished: true,
                 ..
-            } = self.disp.tasks.complete(t, outcome)
+            } = self.disp.tasks.complete(t, frame)
             {
                 self.finish_source(source);
             }
         }
     }
-
-    // ------------------------------------------------------------------ tasks
 
     pub(super) fn dispatch(&mut self) {
         for (worker, a) in self.disp.dispatch() {
@@ -42,26 +45,55 @@ impl Broker {
         }
     }
 
-    pub(super) fn assign(&mut self, worker: &[u8], a: &Assigned) {
+    fn assign(&mut self, worker: &[u8], a: &Assigned) {
         let Some(owner) = self.sources.get(&a.source) else {
             return;
         };
-        let t = owner.task(a.index);
+        let Some(&(scenario, seed, record_decimation)) = owner.tasks.get(a.index) else {
+            return;
+        };
         let msg = TaskAssign {
             task_id: a.task,
-            scenario: Some((*t.scenario).clone()),
-            seed: t.seed,
-            record_decimation: t.record_decimation,
+            scenario_hash: owner.hashes[scenario as usize].clone(),
+            seed,
+            record_decimation,
         };
         self.send(Side::Worker, worker, a.task, Body::TaskAssign(msg));
     }
 
-    pub(super) fn maybe_progress(&mut self, source: SourceId, done: usize, total: usize) {
-        let Some(SourceOwner::Batch {
-            client,
-            request_id,
-            progress: true,
-            last_progress,
+    pub(super) fn on_task_result(&mut self, worker: &[u8], task_id: u64, outcome: zmq::Message) {
+        match self.disp.result(worker, task_id, outcome) {
+            Completion::Accepted {
+                source,
+                done,
+                total,
+                finished,
+                ..
+            } => {
+                self.stats.tasks_done += 1;
+                self.stats.recent.push_back(Instant::now());
+                if finished {
+                    self.finish_source(source);
+                } else {
+                    self.maybe_progress(source, done, total);
+                }
+            }
+            Completion::Dropped => {
+                self.stats.duplicates += 1;
+                tracing::debug!(task_id, peer = %hex(worker), "late, duplicate or foreign result dropped");
+            }
+        }
+    }
+
+    fn maybe_progress(&mut self, source: SourceId, done: usize, total: usize) {
+        let Some(SourceOwner {
+            kind:
+                OwnerKind::Batch {
+                    client,
+                    request_id,
+                    progress: true,
+                    last_progress,
+                },
             ..
         }) = self.sources.get_mut(&source)
         else {
@@ -87,39 +119,45 @@ impl Broker {
         let Some((_, outcomes)) = self.disp.tasks.take_results(source) else {
             return;
         };
-        match self.sources.remove(&source) {
-            Some(SourceOwner::Batch {
+        let Some(owner) = self.sources.remove(&source) else {
+            return;
+        };
+        self.blobs.release(&owner.hashes);
+        match owner.kind {
+            OwnerKind::Batch {
                 client, request_id, ..
-            }) => {
-                self.send(
+            } => {
+                let n = outcomes.len() as u32;
+                self.send_with(
                     Side::Client,
                     &client,
                     request_id,
-                    Body::RolloutResult(RolloutResult { outcomes }),
+                    Body::RolloutResult(RolloutResult { outcomes: n }),
+                    outcomes,
                 );
             }
-            Some(SourceOwner::Job { job_id, .. }) => self.job_round_done(&job_id, outcomes),
-            None => {}
+            OwnerKind::Job { job_id } => {
+                self.job_sources.remove(&job_id);
+                let outcomes = outcomes.iter().map(|m| m.to_vec()).collect();
+                self.tell_office(Command::RoundDone { job_id, outcomes });
+            }
         }
     }
 
+    /// A client's batch: its size is checked here, its scenarios by the back office,
+    /// which hands it back to be queued ([`Broker::queue`]).
     pub(super) fn on_batch(
         &mut self,
         client: ClientKey,
         rid: u64,
         batch: paddock_proto::RolloutBatch,
     ) {
-        let scenarios = match check_batch(&batch, &self.store, "rollout_batch") {
-            Ok(s) => s,
-            Err(e) => return self.refuse(Side::Client, &client, rid, e),
-        };
-        let tasks = batch_tasks(&batch, &scenarios);
         let limit = self
             .cfg
             .limits
             .max_tasks_per_client
             .min(self.cfg.limits.max_tasks);
-        if tasks.len() > limit {
+        if batch.tasks.len() > limit {
             return self.refuse(
                 Side::Client,
                 &client,
@@ -129,32 +167,100 @@ impl Broker {
                     "rollout_batch.tasks",
                     format!(
                         "{} tasks exceed the {limit} one client may queue: split the batch",
-                        tasks.len()
+                        batch.tasks.len()
                     ),
                 ),
             );
         }
-        match self.disp.tasks.submit(&client, tasks.len()) {
-            Ok(source) => {
-                self.sources.insert(
-                    source,
-                    SourceOwner::Batch {
-                        client,
-                        request_id: rid,
-                        tasks,
-                        progress: batch.progress,
-                        last_progress: Instant::now(),
-                    },
-                );
-                // an empty batch is finished already
-                self.finish_source(source);
+        self.tell_office(Command::CheckBatch { client, rid, batch });
+    }
+
+    /// Queues a checked batch or a job round: its tasks in the scheduler, its scenarios
+    /// (hash, bytes) held until it finishes. Err: why there is no room.
+    pub(super) fn queue(
+        &mut self,
+        kind: OwnerKind,
+        scenarios: Vec<(String, Vec<u8>)>,
+        tasks: &[RolloutTaskSpec],
+    ) -> Result<SourceId, String> {
+        let key = match &kind {
+            OwnerKind::Batch { client, .. } => client.clone(),
+            OwnerKind::Job { job_id } => format!("job:{job_id}").into_bytes(),
+        };
+        let hashes: Vec<String> = scenarios.iter().map(|(h, _)| h.clone()).collect();
+        let blobs = scenarios
+            .into_iter()
+            .map(|(h, b)| {
+                let n = b.len();
+                (h, b, n)
+            })
+            .collect();
+        self.blobs.take(blobs).map_err(|e| e.to_string())?;
+        let source = match self.disp.tasks.submit(&key, tasks.len()) {
+            Ok(s) => s,
+            Err(busy) => {
+                self.blobs.release(&hashes);
+                return Err(busy.to_string());
             }
-            Err(busy) => self.refuse(
-                Side::Client,
-                &client,
-                rid,
-                error(ErrorCode::Busy, "rollout_batch.tasks", busy.to_string()),
-            ),
+        };
+        self.sources.insert(
+            source,
+            SourceOwner {
+                kind,
+                tasks: tasks
+                    .iter()
+                    .map(|t| (t.scenario, t.seed, t.record_decimation))
+                    .collect(),
+                hashes,
+            },
+        );
+        // an empty batch is finished already
+        self.finish_source(source);
+        Ok(source)
+    }
+
+    /// A worker asks for a scenario (or another blob) by hash: from the sources in
+    /// flight, else from what the back office keeps on disk.
+    pub(super) fn on_blob_request(&mut self, worker: Vec<u8>, rid: u64, hash: String) {
+        match self.blobs.get(&hash) {
+            Some(data) => {
+                let blob = paddock_proto::Blob {
+                    hash,
+                    data: data.clone(),
+                };
+                self.send(Side::Worker, &worker, rid, Body::Blob(blob));
+            }
+            None => self.tell_office(Command::BlobRequest { worker, rid, hash }),
+        }
+    }
+
+    /// Job rounds that found no room in the queues, tried again.
+    pub(super) fn queue_waiting_rounds(&mut self) {
+        for _ in 0..self.waiting_rounds.len() {
+            let Some((job_id, scenarios, tasks)) = self.waiting_rounds.pop_front() else {
+                break;
+            };
+            self.queue_round(job_id, scenarios, tasks);
+        }
+    }
+
+    /// Queues a job's round, or keeps it waiting when the queues are full.
+    pub(super) fn queue_round(
+        &mut self,
+        job_id: String,
+        scenarios: Vec<(String, Vec<u8>)>,
+        tasks: Vec<RolloutTaskSpec>,
+    ) {
+        let kind = OwnerKind::Job {
+            job_id: job_id.clone(),
+        };
+        match self.queue(kind, scenarios.clone(), &tasks) {
+            Ok(source) => {
+                if self.sources.contains_key(&source) {
+                    self.job_sources.insert(job_id, source);
+                }
+            }
+            Err(_) => self.waiting_rounds.push_back((job_id, scenarios, tasks)),
         }
     }
 }

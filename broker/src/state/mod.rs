@@ -320,6 +320,52 @@ impl Store {
     }
 }
 
+impl Store {
+    /// The file of a stored blob.
+    fn blob_path(&self, hash: &str) -> PathBuf {
+        self.dir.join("blobs").join(hash)
+    }
+
+    /// Stores bytes under their hash (idempotent); returns the hash.
+    pub fn put_blob(&self, data: &[u8]) -> Result<String, StoreError> {
+        let hash = paddock_proto::blob_hash(data);
+        let path = self.blob_path(&hash);
+        if path.is_file() {
+            return Ok(hash);
+        }
+        let io = |source| StoreError::Io {
+            path: path.clone(),
+            source,
+        };
+        let dir = self.dir.join("blobs");
+        std::fs::create_dir_all(&dir).map_err(io)?;
+        let tmp = dir.join(format!(".tmp-{hash}"));
+        std::fs::write(&tmp, data).map_err(io)?;
+        std::fs::rename(&tmp, &path).map_err(io)?;
+        Ok(hash)
+    }
+
+    /// A stored blob's bytes, checked against its hash; None when it is not stored.
+    pub fn blob(&self, hash: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        if !is_hex_hash(hash) {
+            return Ok(None);
+        }
+        let path = self.blob_path(hash);
+        let data = match std::fs::read(&path) {
+            Ok(d) => d,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(source) => return Err(StoreError::Io { path, source }),
+        };
+        if paddock_proto::blob_hash(&data) != hash {
+            return Err(StoreError::Bundle(format!(
+                "stored blob {} no longer matches its hash",
+                path.display()
+            )));
+        }
+        Ok(Some(data))
+    }
+}
+
 /// A map hash as [`paddock_proto::bundle_hash`] writes it: 64 lowercase hex digits
 /// (also keeps hashes from naming paths outside the map store).
 pub fn is_hex_hash(hash: &str) -> bool {

@@ -12,10 +12,15 @@ use crate::{AgentSpec, RolloutError};
 
 /// Most copies one session may hold.
 pub const MAX_ENVS: usize = 1024;
+/// Most cars per copy, learners and opponents together (as a scenario).
+pub const MAX_CARS: usize = 16;
 /// Most opponents per copy (16 cars in all, as a scenario).
-pub const MAX_OPPONENTS: usize = 15;
-/// Most LIDAR beams of the learner's scan.
+pub const MAX_OPPONENTS: usize = MAX_CARS - 1;
+/// Most LIDAR beams of a learner's scan.
 pub const MAX_BEAMS: usize = 10_000;
+/// Most scan values of one frame (`num_envs x learners x beams`): a frame's scans stay
+/// within 40 MB, as with one learner at the other limits.
+pub const MAX_SCAN_VALUES: usize = MAX_ENVS * MAX_BEAMS;
 /// Most physics steps per env step.
 pub const MAX_FRAME_SKIP: u32 = 1000;
 /// Values per car in [`EnvFrame::states`](super::EnvFrame::states):
@@ -53,13 +58,17 @@ pub struct EnvConfig {
     pub num_envs: usize,
     /// Root of every copy's seed stream.
     pub seed: u64,
-    /// Cars 1.. of every copy and their drivers.
+    /// Learner cars per copy: cars `0..learners`, driven by the learner's actions
+    /// (1: a single-agent env; more: self-play and multi-agent learners).
+    #[serde(default = "one")]
+    pub learners: usize,
+    /// Cars `learners..` of every copy and their drivers.
     pub opponents: Vec<AgentSpec>,
-    /// The learner's car.
+    /// The learners' cars.
     pub vehicle: VehicleParams,
     pub lidar: LidarConfig,
     pub obstacles: ObstacleConfig,
-    /// Car 0 finishes (terminated) after this many laps.
+    /// A car finishes (its learner is terminated) after this many laps.
     pub laps: u32,
     /// Simulated seconds before an episode is truncated.
     pub time_limit: f64,
@@ -76,6 +85,7 @@ impl EnvConfig {
             map: map.into(),
             num_envs,
             seed,
+            learners: 1,
             opponents: Vec::new(),
             vehicle: VehicleParams::default(),
             lidar: LidarConfig::default(),
@@ -100,11 +110,22 @@ impl EnvConfig {
                 &format!("must be 1..={MAX_ENVS}"),
             );
         }
-        if self.opponents.len() > MAX_OPPONENTS {
+        if self.learners == 0 || self.learners > MAX_CARS {
+            return invalid(
+                "learners",
+                self.learners,
+                &format!("must be 1..={MAX_CARS}"),
+            );
+        }
+        if self.opponents.len() > MAX_CARS - self.learners {
             return invalid(
                 "opponents",
                 self.opponents.len(),
-                &format!("at most {MAX_OPPONENTS} opponents"),
+                &format!(
+                    "at most {} opponents beside {} learners ({MAX_CARS} cars in all)",
+                    MAX_CARS - self.learners,
+                    self.learners
+                ),
             );
         }
         for (k, o) in self.opponents.iter().enumerate() {
@@ -133,7 +154,19 @@ impl EnvConfig {
             return invalid(
                 "lidar.num_beams",
                 self.lidar.num_beams,
-                &format!("the learner's scan needs 1..={MAX_BEAMS} beams"),
+                &format!("a learner's scan needs 1..={MAX_BEAMS} beams"),
+            );
+        }
+        let values = self.num_envs * self.learners * self.lidar.num_beams;
+        if values > MAX_SCAN_VALUES {
+            return invalid(
+                "lidar.num_beams",
+                self.lidar.num_beams,
+                &format!(
+                    "{} envs x {} learners x {} beams = {values} scan values, over the \
+                     {MAX_SCAN_VALUES} of one frame",
+                    self.num_envs, self.learners, self.lidar.num_beams
+                ),
             );
         }
         if self.laps == 0 || self.laps > 100 {
@@ -169,10 +202,13 @@ impl EnvConfig {
     }
 
     pub(super) fn world_config(&self, opponent_scans: &[bool]) -> WorldConfig {
-        let mut agents = vec![AgentConfig {
-            params: self.vehicle.clone(),
-            scan: true,
-        }];
+        let mut agents = vec![
+            AgentConfig {
+                params: self.vehicle.clone(),
+                scan: true,
+            };
+            self.learners
+        ];
         agents.extend(
             self.opponents
                 .iter()
@@ -196,6 +232,10 @@ impl EnvConfig {
             laps: Some(self.laps),
         }
     }
+}
+
+fn one() -> usize {
+    1
 }
 
 pub(super) fn invalid<T>(

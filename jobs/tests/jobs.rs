@@ -66,13 +66,22 @@ fn info(body: Body) -> paddock_proto::JobInfo {
     }
 }
 
-fn result(c: &RawPeer, rid: u64, id: &str) -> paddock_proto::JobResult {
+/// A job's result and its outcome frames, decoded.
+fn result(
+    c: &RawPeer,
+    rid: u64,
+    id: &str,
+) -> (paddock_proto::JobResult, Vec<paddock_proto::TaskOutcome>) {
     c.send(
         rid,
         Body::JobResultRequest(paddock_proto::JobResultRequest { job_id: id.into() }),
     );
-    match c.reply_to(rid, T) {
-        Body::JobResult(r) => r,
+    match c.reply_frames_to(rid, T) {
+        (Body::JobResult(r), frames) => {
+            assert_eq!(r.outcomes as usize, frames.len());
+            let outcomes = frames.iter().map(|f| decode_outcome(f)).collect();
+            (r, outcomes)
+        }
         other => panic!("expected job_result, got {other:?}"),
     }
 }
@@ -146,7 +155,7 @@ fn a_tune_job_survives_a_broker_restart_and_ends_as_a_local_run() {
     // only the rounds after the stored one ran again
     let rerun = w2.stats.received.load(Ordering::Relaxed);
     assert!(rerun <= 28 - 8, "the new broker ran {rerun} of 28 episodes");
-    let r = result(&c, 5, &id);
+    let (r, _) = result(&c, 5, &id);
     assert_eq!(
         r.result_json,
         local.join().unwrap(),
@@ -165,7 +174,7 @@ fn a_tune_job_survives_a_broker_restart_and_ends_as_a_local_run() {
         }
         other => panic!("expected job_listing, got {other:?}"),
     }
-    assert!(!result(&c, 7, &id).result_json.is_empty());
+    assert!(!result(&c, 7, &id).0.result_json.is_empty());
 }
 
 #[test]
@@ -248,8 +257,8 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
         );
         while info(c.reply_to(rid, T)).state != JobState::Succeeded as i32 {}
     }
-    let r = result(&c, 8, &rollouts);
-    assert_eq!(r.rollouts.unwrap().outcomes, run_locally(&b));
+    let (_, outcomes) = result(&c, 8, &rollouts);
+    assert_eq!(outcomes, run_locally(&b));
 
     let circuit = paddock_sim::track::Circuit::resolve("lakeside", &[]).unwrap();
     let spec = paddock_rollout::benchmark::BenchmarkSpec {
@@ -268,7 +277,7 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
         .run_batch(&spec.tasks().unwrap(), &|_| {});
     let local =
         serde_json::to_string(&paddock_rollout::benchmark::report(&spec, &results)).unwrap();
-    assert_eq!(result(&c, 9, &benchmark).result_json, local);
+    assert_eq!(result(&c, 9, &benchmark).0.result_json, local);
 
     c.send(10, Body::JobList(paddock_proto::JobListRequest {}));
     match c.reply_to(10, T) {

@@ -1,6 +1,7 @@
-//! Test harness: a real [`Broker`] on loopback ports, raw DEALER clients and a raw test
-//! worker that runs episodes with `paddock_rollout::run_episode` (or fakes env
-//! sessions), with knobs to misbehave.
+//! Test harness: a real [`Broker`] with the real job plans on loopback ports, raw DEALER
+//! clients and a raw test worker that runs episodes with `paddock_rollout::run_episode`
+//! (or fakes env sessions), with knobs to misbehave. Messages are an Envelope frame and
+//! payload frames, as on the wire.
 
 #![allow(dead_code)]
 
@@ -12,8 +13,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use paddock_broker::{Broker, BrokerConfig};
-use paddock_proto::convert::{outcome_to_proto, task_from_assign};
 use paddock_proto::{Body, MapRef, encode};
+use prost::Message;
 
 pub struct TestBroker {
     pub frontend: String,
@@ -36,7 +37,7 @@ impl TestBroker {
     ) -> Self {
         let mut cfg = BrokerConfig::new("tcp://127.0.0.1:0", "tcp://127.0.0.1:0", state);
         tweak(&mut cfg);
-        let mut broker = Broker::bind_in(cfg, ctx).expect("broker binds");
+        let mut broker = Broker::bind_in(cfg, paddock_jobs::Plans, ctx).expect("broker binds");
         let frontend = broker.frontend_endpoint().to_string();
         let backend = broker.backend_endpoint().to_string();
         let stop = Arc::new(AtomicBool::new(false));
@@ -91,13 +92,39 @@ impl RawPeer {
         self.send_raw(&encode(rid, body));
     }
 
+    /// Sends an Envelope and its payload frames.
+    pub fn send_with(&self, rid: u64, body: Body, payload: Vec<Vec<u8>>) {
+        let mut frames = vec![encode(rid, body)];
+        frames.extend(payload);
+        self.socket.send_multipart(frames, 0).unwrap();
+    }
+
+    /// An env request (`op` on session `sid`, 0 to open) with its payload message.
+    pub fn env(&self, rid: u64, sid: u64, op: paddock_proto::EnvOp, payload: Option<Vec<u8>>) {
+        let header = Body::EnvRequest(paddock_proto::EnvRequest {
+            session_id: sid,
+            op: op as i32,
+        });
+        self.send_with(rid, header, payload.into_iter().collect());
+    }
+
     /// The next message (panics after `timeout`).
     pub fn recv(&self, timeout: Duration) -> (u64, Body) {
-        self.try_recv(timeout)
+        let (rid, body, _) = self.recv_frames(timeout);
+        (rid, body)
+    }
+
+    /// The next message with its payload frames (panics after `timeout`).
+    pub fn recv_frames(&self, timeout: Duration) -> (u64, Body, Vec<Vec<u8>>) {
+        self.try_recv_frames(timeout)
             .unwrap_or_else(|| panic!("no message within {timeout:?}"))
     }
 
     pub fn try_recv(&self, timeout: Duration) -> Option<(u64, Body)> {
+        self.try_recv_frames(timeout).map(|(r, b, _)| (r, b))
+    }
+
+    pub fn try_recv_frames(&self, timeout: Duration) -> Option<(u64, Body, Vec<Vec<u8>>)> {
         if self
             .socket
             .poll(zmq::POLLIN, timeout.as_millis() as i64)
@@ -106,27 +133,56 @@ impl RawPeer {
         {
             return None;
         }
-        let frame = self.socket.recv_bytes(0).unwrap();
-        Some(paddock_proto::decode(&frame).expect("the broker sends valid envelopes"))
+        let mut frames = self.socket.recv_multipart(0).unwrap();
+        let payload = frames.split_off(1);
+        let (rid, body) =
+            paddock_proto::decode(&frames[0]).expect("the broker sends valid envelopes");
+        assert_eq!(
+            payload.len(),
+            paddock_proto::payload_frames(&body),
+            "payload frames of {body:?}"
+        );
+        Some((rid, body, payload))
     }
 
     /// The reply to request `rid`, skipping progress messages.
     pub fn reply_to(&self, rid: u64, timeout: Duration) -> Body {
+        self.reply_frames_to(rid, timeout).0
+    }
+
+    /// The reply to request `rid` with its payload frames, skipping progress messages.
+    pub fn reply_frames_to(&self, rid: u64, timeout: Duration) -> (Body, Vec<Vec<u8>>) {
         let deadline = Instant::now() + timeout;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
-            let (id, body) = self.recv(left.max(Duration::from_millis(1)));
+            let (id, body, payload) = self.recv_frames(left.max(Duration::from_millis(1)));
             if id == rid && !matches!(body, Body::RolloutProgress(_)) {
-                return body;
+                return (body, payload);
             }
+        }
+    }
+
+    /// The outcomes of the rollout result answering request `rid`, decoded.
+    pub fn outcomes(&self, rid: u64, timeout: Duration) -> Vec<paddock_proto::TaskOutcome> {
+        match self.reply_frames_to(rid, timeout) {
+            (Body::RolloutResult(r), frames) => {
+                assert_eq!(r.outcomes as usize, frames.len());
+                frames.iter().map(|f| decode_outcome(f)).collect()
+            }
+            other => panic!("expected rollout_result, got {other:?}"),
         }
     }
 }
 
+/// A task outcome's payload frame, decoded.
+pub fn decode_outcome(frame: &[u8]) -> paddock_proto::TaskOutcome {
+    paddock_proto::TaskOutcome::decode(frame).expect("an outcome frame decodes")
+}
+
 /// The shipped default map as a bundle and its reference.
 pub fn lakeside() -> (paddock_proto::MapBundle, MapRef) {
-    let b = paddock_proto::convert::local_map("lakeside").unwrap();
-    let r = paddock_proto::convert::map_ref(&b);
+    let b = paddock_wire::local_map("lakeside").unwrap();
+    let r = paddock_wire::map_ref(&b);
     (b, r)
 }
 
@@ -187,8 +243,8 @@ pub struct WorkerStats {
     pub max_in_flight: AtomicUsize,
     /// Task ids received, in order.
     pub tasks: Mutex<Vec<u64>>,
-    /// Request ids and session ids of env requests received.
-    pub env_requests: Mutex<Vec<(u64, u64)>>,
+    /// Request ids, session ids and ops of env requests received.
+    pub env_requests: Mutex<Vec<(u64, u64, i32)>>,
     pub welcomed: AtomicBool,
 }
 
@@ -233,27 +289,28 @@ impl TestWorker {
     }
 }
 
-fn task_hash(t: &paddock_proto::TaskAssign) -> String {
-    t.scenario
-        .as_ref()
-        .and_then(|s| s.map.as_ref())
-        .map(|m| m.hash.clone())
-        .unwrap_or_default()
-}
-
 /// Runs episodes on its own thread, so the message loop keeps heartbeating (as a real
 /// worker does) however long an episode takes.
 fn compute_thread(
-    jobs: std::sync::mpsc::Receiver<(paddock_proto::TaskAssign, PathBuf)>,
-    results: std::sync::mpsc::Sender<(u64, paddock_proto::TaskOutcome)>,
+    jobs: std::sync::mpsc::Receiver<(paddock_proto::TaskAssign, paddock_proto::Scenario, PathBuf)>,
+    results: std::sync::mpsc::Sender<(u64, Vec<u8>)>,
 ) {
-    for (t, dir) in jobs {
-        let task = task_from_assign(&t, &dir).expect("the broker checked the task");
+    for (t, wire, dir) in jobs {
+        let scenario =
+            paddock_wire::scenario_from_proto(&wire, &dir).expect("the broker checked the task");
+        let task = paddock_wire::task_from_assign(&t, std::sync::Arc::new(scenario));
         let r = paddock_rollout::run_episode(&task.scenario, task.seed, task.record);
-        if results.send((t.task_id, outcome_to_proto(&r))).is_err() {
+        if results
+            .send((t.task_id, paddock_wire::outcome_to_bytes(&r)))
+            .is_err()
+        {
             return;
         }
     }
+}
+
+fn map_hash(s: &paddock_proto::Scenario) -> String {
+    s.map.as_ref().map(|m| m.hash.clone()).unwrap_or_default()
 }
 
 fn hello(peer: &RawPeer, opts: &WorkerOpts) {
@@ -276,25 +333,27 @@ fn worker_loop(
     stats: &WorkerStats,
     stop: &AtomicBool,
 ) {
+    use paddock_proto::EnvOp;
     let peer = RawPeer::connect(backend);
     hello(&peer, &opts);
     let (job_tx, job_rx) = std::sync::mpsc::channel();
     let (res_tx, res_rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || compute_thread(job_rx, res_tx));
     let mut maps: HashMap<String, PathBuf> = HashMap::new();
+    let mut scenarios: HashMap<String, paddock_proto::Scenario> = HashMap::new();
     let mut asked: HashMap<String, bool> = HashMap::new();
     let mut pending: VecDeque<(Instant, paddock_proto::TaskAssign)> = VecDeque::new();
     let mut outstanding = 0usize;
     let mut last_beat = Instant::now();
     let mut silent = false;
-    let mut next_session = 1u64;
+    let mut next_request = 100u64;
     while !stop.load(Ordering::Relaxed) {
         let wait = if outstanding > 0 && !silent {
             Duration::from_millis(1)
         } else {
             Duration::from_millis(5)
         };
-        if let Some((rid, body)) = peer.try_recv(wait) {
+        if let Some((rid, body, payload)) = peer.try_recv_frames(wait) {
             match body {
                 Body::WorkerWelcome(_) => stats.welcomed.store(true, Ordering::Relaxed),
                 // the broker forgot us (declared dead while busy): register again
@@ -305,10 +364,14 @@ fn worker_loop(
                     if opts.silent_after.is_some_and(|k| n > k) {
                         silent = true;
                     }
-                    let hash = task_hash(&t);
-                    if !maps.contains_key(&hash) && !asked.contains_key(&hash) && !silent {
+                    let hash = t.scenario_hash.clone();
+                    if !scenarios.contains_key(&hash) && !asked.contains_key(&hash) && !silent {
                         asked.insert(hash.clone(), true);
-                        peer.send(2, Body::MapRequest(paddock_proto::MapRequest { hash }));
+                        next_request += 1;
+                        peer.send(
+                            next_request,
+                            Body::BlobRequest(paddock_proto::BlobRequest { hash }),
+                        );
                     }
                     pending.push_back((Instant::now() + opts.delay, t));
                     outstanding += 1;
@@ -316,47 +379,66 @@ fn worker_loop(
                         .max_in_flight
                         .fetch_max(outstanding, Ordering::Relaxed);
                 }
+                Body::Blob(b) => {
+                    let wire = paddock_proto::Scenario::decode(b.data.as_slice()).unwrap();
+                    let m = map_hash(&wire);
+                    if !maps.contains_key(&m) && !asked.contains_key(&m) {
+                        asked.insert(m.clone(), true);
+                        next_request += 1;
+                        peer.send(
+                            next_request,
+                            Body::MapRequest(paddock_proto::MapRequest { hash: m }),
+                        );
+                    }
+                    scenarios.insert(b.hash, wire);
+                }
                 Body::MapBundle(b) => {
                     let dir = cache.join(&b.hash).join(&b.name);
                     paddock_proto::write_map_dir(&b, &dir).unwrap();
                     maps.insert(b.hash.clone(), dir);
                 }
-                Body::EnvOpen(o) if !silent => {
-                    stats.env_requests.lock().unwrap().push((rid, 0));
-                    let sid = next_session;
-                    next_session += 1;
-                    peer.send(
-                        rid,
-                        Body::EnvOpened(paddock_proto::EnvOpened {
-                            session_id: sid,
-                            num_envs: o.num_envs,
-                            ..Default::default()
-                        }),
-                    );
-                }
-                Body::EnvStep(s) if !silent => {
-                    stats.env_requests.lock().unwrap().push((rid, s.session_id));
-                    if opts.silent_after == Some(0) {
-                        silent = true;
-                        continue;
+                Body::EnvRequest(r) if !silent => {
+                    stats
+                        .env_requests
+                        .lock()
+                        .unwrap()
+                        .push((rid, r.session_id, r.op));
+                    let reply = |op: i32, frames: Vec<Vec<u8>>| {
+                        let views: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+                        let header = paddock_proto::EnvReply {
+                            session_id: r.session_id,
+                            op,
+                            fingerprint: paddock_proto::fingerprint(&views),
+                            restart: false,
+                            error: None,
+                        };
+                        peer.send_with(rid, Body::EnvReply(header), frames);
+                    };
+                    match EnvOp::try_from(r.op) {
+                        Ok(EnvOp::EnvOpen) => {
+                            let o = paddock_proto::EnvOpen::decode(payload[0].as_slice()).unwrap();
+                            let opened = paddock_proto::EnvOpened {
+                                num_envs: o.num_envs,
+                                ..Default::default()
+                            };
+                            reply(r.op, vec![opened.encode_to_vec()]);
+                        }
+                        Ok(EnvOp::EnvStep) => {
+                            if opts.silent_after == Some(0) {
+                                silent = true;
+                                continue;
+                            }
+                            // echo the actions back as rewards
+                            let s = paddock_proto::EnvStep::decode(payload[0].as_slice()).unwrap();
+                            let obs = paddock_proto::EnvObservation {
+                                rewards: s.actions,
+                                ..Default::default()
+                            };
+                            reply(r.op, vec![obs.encode_to_vec(), Vec::new()]);
+                        }
+                        Ok(EnvOp::EnvClose) => reply(r.op, Vec::new()),
+                        _ => {}
                     }
-                    // echo the actions back as rewards, tagged with the worker's session
-                    peer.send(
-                        rid,
-                        Body::EnvObservation(paddock_proto::EnvObservation {
-                            session_id: s.session_id,
-                            rewards: s.actions,
-                            ..Default::default()
-                        }),
-                    );
-                }
-                Body::EnvClose(c) if !silent => {
-                    peer.send(
-                        rid,
-                        Body::EnvClosed(paddock_proto::EnvClosed {
-                            session_id: c.session_id,
-                        }),
-                    );
                 }
                 _ => {}
             }
@@ -365,24 +447,24 @@ fn worker_loop(
             continue;
         }
         while let Some((due, t)) = pending.front() {
-            let Some(dir) = maps.get(&task_hash(t)) else {
+            let Some(wire) = scenarios.get(&t.scenario_hash) else {
+                break;
+            };
+            let Some(dir) = maps.get(&map_hash(wire)) else {
                 break;
             };
             if *due > Instant::now() {
                 break;
             }
-            let dir = dir.clone();
+            let (wire, dir) = (wire.clone(), dir.clone());
             let (_, t) = pending.pop_front().expect("front exists");
-            job_tx.send((t, dir)).expect("compute thread alive");
+            job_tx.send((t, wire, dir)).expect("compute thread alive");
         }
         while let Ok((task_id, outcome)) = res_rx.try_recv() {
-            let msg = Body::TaskResult(paddock_proto::TaskResult {
-                task_id,
-                outcome: Some(outcome),
-            });
-            peer.send(task_id, msg.clone());
+            let msg = Body::TaskResult(paddock_proto::TaskResult { task_id });
+            peer.send_with(task_id, msg.clone(), vec![outcome.clone()]);
             if opts.duplicate {
-                peer.send(task_id, msg);
+                peer.send_with(task_id, msg, vec![outcome]);
             }
             outstanding -= 1;
             stats.answered.fetch_add(1, Ordering::Relaxed);
@@ -409,26 +491,23 @@ pub fn run_locally(batch: &paddock_proto::RolloutBatch) -> Vec<paddock_proto::Ta
         .tasks
         .iter()
         .map(|t| {
-            let sc = paddock_proto::convert::scenario_from_proto(
-                &batch.scenarios[t.scenario as usize],
-                &dir,
-            )
-            .unwrap();
+            let sc = paddock_wire::scenario_from_bytes(&batch.scenarios[t.scenario as usize], &dir)
+                .unwrap();
             let r = paddock_rollout::run_episode(
                 &sc,
                 t.seed,
-                paddock_proto::convert::record_from_proto(t.record_decimation),
+                paddock_wire::record_from_proto(t.record_decimation),
             );
-            outcome_to_proto(&r)
+            paddock_wire::outcome_to_proto(&r)
         })
         .collect()
 }
 
 /// A batch of `n` short episodes on `map` with seeds from `seed`.
 pub fn batch(map: &MapRef, n: usize, seed: u64, time_limit: f64) -> paddock_proto::RolloutBatch {
-    let sc = paddock_proto::convert::scenario_to_proto(&short_scenario(time_limit), map.clone());
+    let sc = paddock_wire::scenario_to_proto(&short_scenario(time_limit), map.clone());
     paddock_proto::RolloutBatch {
-        scenarios: vec![sc],
+        scenarios: vec![sc.encode_to_vec()],
         tasks: (0..n as u64)
             .map(|k| paddock_proto::RolloutTaskSpec {
                 scenario: 0,
