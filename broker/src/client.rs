@@ -265,6 +265,20 @@ impl Client {
     }
 }
 
+impl Client {
+    /// Stores bytes (a model file) in the broker (idempotent); returns their hash, by
+    /// which scenarios name them (`onnx:<hash>`).
+    pub fn put_blob(&mut self, data: Vec<u8>) -> Result<String, ClientError> {
+        match self.request(Body::PutBlob(paddock_proto::PutBlob { data }))? {
+            Body::BlobStored(b) => Ok(b.hash),
+            other => Err(ClientError::Protocol(format!(
+                "expected blob_stored, got {}",
+                paddock_proto::body_name(&other)
+            ))),
+        }
+    }
+}
+
 /// Whether an error asks for a map by hash (the answer is `PutMap`, then a retry).
 pub fn is_missing_map(e: &ClientError) -> bool {
     matches!(e, ClientError::Remote(r)

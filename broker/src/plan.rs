@@ -16,11 +16,15 @@ use std::path::PathBuf;
 
 use paddock_proto::{Error, JobSubmit, MapBundle, RolloutBatch, RolloutTaskSpec};
 
-/// The maps the broker stores, as the plans read them.
-pub trait Maps {
+/// What the broker stores, as the plans read it: maps and blobs (model files), by hash.
+pub trait Stored {
     /// The folder holding the files of the stored map with this hash; None when it is not
     /// stored.
     fn map_dir(&self, hash: &str) -> Option<PathBuf>;
+
+    /// The bytes of the stored blob with this hash (a model file a client stored with
+    /// `PutBlob`); None when it is not stored.
+    fn blob(&self, hash: &str) -> Option<Vec<u8>>;
 }
 
 /// One round of a job: its scenarios (each an encoded `paddock.v1.Scenario`) and tasks
@@ -43,22 +47,26 @@ pub struct JobOutput {
 pub trait Planner: Send + 'static {
     /// Checks every scenario and task of a batch before it is queued; an error names the
     /// first bad field under `prefix` (e.g. `rollout_batch.scenarios[2].laps`).
-    fn check_batch(&self, batch: &RolloutBatch, maps: &dyn Maps, prefix: &str)
-    -> Result<(), Error>;
+    fn check_batch(
+        &self,
+        batch: &RolloutBatch,
+        maps: &dyn Stored,
+        prefix: &str,
+    ) -> Result<(), Error>;
 
     /// Checks what the files of a map bundle say (its form, names, size and hash, the
     /// broker checks itself).
     fn check_map(&self, bundle: &MapBundle) -> Result<(), Error>;
 
     /// The plan of a submitted job; an error names the bad field (`job_submit.tune.driver`).
-    fn plan(&self, submit: &JobSubmit, maps: &dyn Maps) -> Result<Box<dyn JobPlan>, Error>;
+    fn plan(&self, submit: &JobSubmit, maps: &dyn Stored) -> Result<Box<dyn JobPlan>, Error>;
 
     /// A stored job again: its submission and the state it stored after its last round.
     fn restore(
         &self,
         submit: &JobSubmit,
         state: &str,
-        maps: &dyn Maps,
+        maps: &dyn Stored,
     ) -> Result<Box<dyn JobPlan>, String>;
 }
 
@@ -95,7 +103,7 @@ pub trait JobPlan: Send {
 pub struct RouteOnly;
 
 impl Planner for RouteOnly {
-    fn check_batch(&self, batch: &RolloutBatch, _: &dyn Maps, prefix: &str) -> Result<(), Error> {
+    fn check_batch(&self, batch: &RolloutBatch, _: &dyn Stored, prefix: &str) -> Result<(), Error> {
         check_task_indices(batch, prefix)
     }
 
@@ -103,7 +111,7 @@ impl Planner for RouteOnly {
         Ok(())
     }
 
-    fn plan(&self, _: &JobSubmit, _: &dyn Maps) -> Result<Box<dyn JobPlan>, Error> {
+    fn plan(&self, _: &JobSubmit, _: &dyn Stored) -> Result<Box<dyn JobPlan>, Error> {
         Err(paddock_proto::error(
             paddock_proto::ErrorCode::InvalidArgument,
             "job_submit",
@@ -111,7 +119,7 @@ impl Planner for RouteOnly {
         ))
     }
 
-    fn restore(&self, _: &JobSubmit, _: &str, _: &dyn Maps) -> Result<Box<dyn JobPlan>, String> {
+    fn restore(&self, _: &JobSubmit, _: &str, _: &dyn Stored) -> Result<Box<dyn JobPlan>, String> {
         Err("this broker runs no jobs (it was started without job plans)".into())
     }
 }

@@ -128,6 +128,31 @@ impl Remote {
         Ok(b)
     }
 
+    /// Stores an ONNX model in the broker (once per connection), so that workers fetch
+    /// it by its hash when a scenario names it (`onnx:<hash>`).
+    pub fn put_model(&mut self, model: &paddock_policy::OnnxModel) -> Result<()> {
+        if self.stored.contains(model.hash()) {
+            return Ok(());
+        }
+        let hash = self.client.put_blob(model.bytes().to_vec()).map_err(|e| {
+            anyhow!(
+                "storing model {} in the broker at {}: {e}",
+                model.label(),
+                self.endpoint
+            )
+        })?;
+        if hash != model.hash() {
+            bail!(
+                "the broker at {} stored model {} under hash {hash}, not {}",
+                self.endpoint,
+                model.label(),
+                model.hash()
+            );
+        }
+        self.stored.insert(hash);
+        Ok(())
+    }
+
     /// Sends `request` and waits for its final reply, passing progress to `on_update`;
     /// gives up after `idle` without any message for it.
     pub fn exchange(

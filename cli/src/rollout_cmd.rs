@@ -77,8 +77,8 @@ pub fn run_tasks(
 
 #[derive(Args)]
 pub struct RolloutArgs {
-    /// Driver: a name (see `paddock drivers`) or an ONNX model file (`model.onnx`, run
-    /// locally; docs/onnx.md).
+    /// Driver: a name (see `paddock drivers`) or an ONNX model file (`model.onnx`;
+    /// docs/onnx.md).
     #[arg(long, alias = "policy", default_value = "pure-pursuit")]
     driver: String,
     /// Driver parameters: `name=value,...` or a full comma-separated vector.
@@ -106,6 +106,11 @@ pub struct RolloutArgs {
     /// Seeded random static obstacles on the track.
     #[arg(long, default_value_t = 0, value_parser = args::whole::<usize>(0, 1_000))]
     obstacles: usize,
+    /// Start every episode on the starting grid at this arc length along the centerline
+    /// (m), as `paddock bridge sil --start-s` does, instead of at a seeded random place
+    /// (the LIDAR noise still follows each episode's seed).
+    #[arg(long, value_name = "M", value_parser = args::number(0.0, 1e5))]
+    start_s: Option<f64>,
     /// Worker threads (0: one per core; at most 4 per core).
     #[arg(long, default_value_t = 0, value_parser = args::threads())]
     threads: usize,
@@ -131,14 +136,30 @@ pub struct RolloutArgs {
 
 /// A driver name or a `.onnx` model path given on the command line (`flag` names it in
 /// errors), as the driver name a scenario carries: a model is read, checked and
-/// optimised once for this process and registered (`onnx:<sha256>`). Models do not
-/// travel to workers yet, so they run locally only.
+/// optimised once for this process and registered (`onnx:<sha256>`). With a broker
+/// (`endpoint`), the model is also stored in it, from where each worker fetches it once.
 pub fn resolve_driver(flag: &str, name: &str, endpoint: Option<&str>) -> Result<String> {
     let spec = paddock_policy::DriverSpec::parse(name).with_context(|| format!("{flag} {name}"))?;
-    if endpoint.is_some() && matches!(spec, paddock_policy::DriverSpec::Onnx(_)) {
-        bail!("{flag} {name}: ONNX models run locally only for now (no --endpoint)");
+    let registered = spec.register().with_context(|| format!("{flag} {name}"))?;
+    if let (Some(endpoint), paddock_policy::DriverSpec::Onnx(model)) = (endpoint, &spec) {
+        crate::remote::Remote::connect(endpoint)?
+            .put_model(model)
+            .with_context(|| format!("{flag} {name}"))?;
     }
-    spec.register().with_context(|| format!("{flag} {name}"))
+    Ok(registered)
+}
+
+/// The start of a one-car scenario on the starting grid at arc length `s` (m): the
+/// pose `paddock bridge sil --start-s` starts its car at.
+fn grid_start(scenario: &Scenario, s: f64) -> Result<paddock_rollout::StartSpec> {
+    use paddock_sim::world::{Starts, World, WorldConfig};
+    let circuit = paddock_sim::track::Circuit::resolve(&scenario.map, &[])
+        .with_context(|| format!("loading map {:?}", scenario.map))?;
+    let world = World::new(circuit, WorldConfig::default())?;
+    let poses = world
+        .start_poses_for(0, &Starts::Grid { s })
+        .with_context(|| format!("--start-s {s}"))?;
+    Ok(paddock_rollout::StartSpec::Poses(poses))
 }
 
 pub fn rollout(args: &RolloutArgs) -> Result<()> {
@@ -151,6 +172,9 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
     scenario.laps = args.laps;
     scenario.time_limit = args.time_limit;
     scenario.obstacles.count = args.obstacles;
+    if let Some(s) = args.start_s {
+        scenario.starts = grid_start(&scenario, s)?;
+    }
     scenario.validate()?;
     let scenario = Arc::new(scenario);
     let mut tasks: Vec<EpisodeTask> = (0..args.episodes)
@@ -272,7 +296,7 @@ pub struct BenchmarkArgs {
     /// b1 (time trial), b2 (unknown obstacles) or b3 (head to head).
     task: Task,
     /// The driver under test: a name (see `paddock drivers`) or an ONNX model file
-    /// (`model.onnx`, run locally; docs/onnx.md).
+    /// (`model.onnx`; docs/onnx.md).
     #[arg(long, alias = "policy", default_value = "pure-pursuit")]
     driver: String,
     /// The driver's parameters: `name=value,...` or a full comma-separated vector.

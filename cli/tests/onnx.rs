@@ -57,16 +57,6 @@ fn rollout_runs_a_model_file_locally_and_deterministically() {
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["episodes"][0]["termination"], "crashed", "{out}");
 
-    let (ok, _, err) = paddock(&[
-        "rollout",
-        "--driver",
-        &path,
-        "--endpoint",
-        "tcp://127.0.0.1:9",
-        "--episodes",
-        "1",
-    ]);
-    assert!(!ok && err.contains("ONNX models run locally only"), "{err}");
     let junk = write_model(dir.path(), "junk.onnx", b"not a model");
     let (ok, _, err) = paddock(&["rollout", "--driver", &junk]);
     assert!(!ok && err.contains("junk.onnx: not an ONNX model"), "{err}");
@@ -208,21 +198,6 @@ fn benchmark_demo_and_bridge_refuse_bad_models_before_running() {
         "tcp://127.0.0.1:9",
     ]);
     assert!(!ok && err.contains("--opponent"), "{err}");
-    let lidar = LidarConfig::default();
-    let good = write_model(
-        dir.path(),
-        "good.onnx",
-        &write::centering_on_scans(lidar.num_beams, lidar.fov, 0.4, 2.0).bytes(),
-    );
-    let (ok, _, err) = paddock(&[
-        "benchmark",
-        "b1",
-        "--driver",
-        &good,
-        "--endpoint",
-        "tcp://127.0.0.1:9",
-    ]);
-    assert!(!ok && err.contains("ONNX models run locally only"), "{err}");
 }
 
 #[test]

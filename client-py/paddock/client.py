@@ -162,6 +162,10 @@ class Client:
                  timeout: float | None = None) -> RolloutResults:
         """One episode per (parameter vector, seed) of driver ``driver`` on ``map``.
 
+        ``driver`` (and each opponent's) is a driver name or an ONNX model file
+        (``*.onnx``, which takes no parameters: ``params=[]``); a model is stored in the
+        broker once per connection and fetched by its hash by each worker.
+
         ``params``: one vector or a ``(P, D)`` array (the driver's parameters in its
         declared order, ``paddock drivers``); ``seeds``: ``S`` seeds. Results are
         ``(P, S)`` arrays in that order. A task the server refuses raises its error.
@@ -179,12 +183,14 @@ class Client:
             raise ValueError(f"collision_mode = {collision_mode!r} is not one of {sorted(_COLLISION)}")
         ref = self.conn.map_ref(map)
         car_yaml = _vehicle_yaml(vehicle_params, vehicle)
-        others = [pb.AgentSpec(driver=d, params=[float(v) for v in ps], vehicle_yaml=car_yaml)
+        name = self.conn.driver_name(driver)
+        others = [pb.AgentSpec(driver=self.conn.driver_name(d), params=[float(v) for v in ps],
+                               vehicle_yaml=car_yaml)
                   for d, ps in opponents]
         batch = pb.RolloutBatch()
         for row in p:
             batch.scenarios.append(pb.Scenario(
-                map=ref, agents=[pb.AgentSpec(driver=driver, params=row.tolist(), vehicle_yaml=car_yaml)] + others,
+                map=ref, agents=[pb.AgentSpec(driver=name, params=row.tolist(), vehicle_yaml=car_yaml)] + others,
                 start_kind=pb.START_RANDOM, laps=int(laps), time_limit=float(time_limit),
                 collision_mode=_COLLISION[collision_mode],
                 lidar=pb.Lidar(num_beams=int(num_beams), fov=4.7, max_range=30.0, noise_std=0.01),

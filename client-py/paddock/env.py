@@ -8,7 +8,8 @@ keys and units (metres, radians, seconds); bulk numbers are numpy views of the r
 packed bytes (``numpy.frombuffer``), never per-element Python loops.
 
 The learner drives car 0 with ``[steer (rad), speed (m/s)]``; further cars (opponents)
-are driven on the worker by registry drivers. ``terminated`` = car 0 crashed or finished
+are driven on the worker by registry drivers or ONNX model files (``"policy.onnx"``,
+stored in the broker once and fetched by each worker by its hash). ``terminated`` = car 0 crashed or finished
 its laps; ``truncated`` = the time limit. With ``learners=N`` the learner drives cars
 ``0..N`` (f1tenth_gym's one action row per car: ``step(np.array([[steer, speed], ...]))``,
 ``scans`` one row per learner car); the episode ends when every learner car is out of the
@@ -212,11 +213,7 @@ class EnvSession:
         agents = []
         for o in opponents:
             driver, driver_params = (o, ()) if isinstance(o, str) else (o[0], o[1])
-            if str(driver).lower().endswith(".onnx"):
-                raise ValueError(f"opponents: {driver!r}: ONNX models do not travel to the "
-                                 f"server's workers yet; race them with `paddock benchmark b3 "
-                                 f"--opponent {driver}`, or drive them in Python "
-                                 f"(paddock.pettingzoo, learners=)")
+            driver = conn.driver_name(driver)
             agents.append(pb.AgentSpec(driver=driver, params=[float(p) for p in driver_params],
                                        vehicle_yaml=vehicle_yaml))
         self.conn = conn

@@ -11,7 +11,9 @@ ZeroMQ's messages.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
+import os
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -22,6 +24,9 @@ from google.protobuf.message import DecodeError, Message
 from . import errors
 from ._proto import paddock_pb2 as pb
 from .maps import find_map_dir, read_bundle, server_map
+
+#: The largest model file the server accepts (bytes), as ``paddock`` checks it.
+MAX_MODEL_BYTES = 64 << 20
 
 PROTOCOL_VERSION = 2
 DEFAULT_TIMEOUT = 30.0
@@ -128,6 +133,7 @@ class Connection:
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         self._maps: dict[str, pb.MapRef] = {}
+        self._models: dict[str, str] = {}
         self._sock: zmq.Socket | None = None
         self._monitor: zmq.Socket | None = None
         self._fingerprint = ""
@@ -293,6 +299,35 @@ class Connection:
                 ref = server_map(map, list(self.status().maps))
             self._maps[map] = ref
         return ref
+
+    def driver_name(self, driver: str | os.PathLike[str]) -> str:
+        """The driver name a scenario or env open carries: a driver's name as given, or
+        for an ONNX model file (``*.onnx``) ``onnx:<sha256>`` of its bytes, the model
+        stored in the broker once per connection (workers fetch it from there by that
+        hash, once each)."""
+        text = os.fspath(driver)
+        if not text.lower().endswith(".onnx"):
+            return text
+        name = self._models.get(text)
+        if name is None:
+            try:
+                size = os.path.getsize(text)
+                if size > MAX_MODEL_BYTES:
+                    raise ValueError(f"{text}: {size} bytes is over the {MAX_MODEL_BYTES}-byte "
+                                     "model limit")
+                with open(text, "rb") as f:
+                    data = f.read()
+            except OSError as e:
+                raise ValueError(f"driver {text!r}: cannot read the model file: {e}") from e
+            digest = hashlib.sha256(data).hexdigest()
+            stored = self.request("put_blob", pb.PutBlob(data=data), "blob_stored")
+            if stored.hash != digest:
+                raise errors.ServerError(13, "put_blob.data",
+                                         f"the broker stored {text} under hash {stored.hash}, "
+                                         f"not its SHA-256 {digest}")
+            name = f"onnx:{digest}"
+            self._models[text] = name
+        return name
 
     def status(self, timeout: float | None = None) -> pb.BrokerStatus:
         return self.request("status_request", pb.StatusRequest(), "broker_status", timeout)

@@ -69,8 +69,8 @@ def test_vector_env_with_learner_rows(endpoint: str) -> None:
         paddock.make_vec(1, endpoint, num_agents=2, learners=3)
     with pytest.raises(errors.InvalidArgument, match="learners"):
         paddock.make_vec(1, endpoint, num_agents=17, learners=17)
-    with pytest.raises(ValueError, match="ONNX models do not travel"):
-        paddock.make_vec(1, endpoint, num_agents=2, opponents=["model.onnx"])
+    with pytest.raises(ValueError, match="'missing.onnx': cannot read the model file"):
+        paddock.make_vec(1, endpoint, num_agents=2, opponents=["missing.onnx"])
 
 
 pettingzoo = pytest.importorskip("pettingzoo")

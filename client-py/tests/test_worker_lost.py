@@ -8,54 +8,19 @@ session) instead of hanging, once the broker has declared the worker dead.
 
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import subprocess
-import tempfile
 import time
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
 import paddock
+from _cluster import cluster
 from paddock import errors
-from paddock.server import find_paddock, free_port, stop_process
 from paddock.transport import Connection
 
 ACTION = np.array([0.05, 1.5], dtype=np.float32)
-
-
-@contextlib.contextmanager
-def _cluster(workers: int) -> Iterator[tuple[str, list[subprocess.Popen]]]:
-    """A `paddock broker` and `workers` `paddock worker` processes on loopback."""
-    binary = find_paddock()
-    front, back = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
-    with tempfile.TemporaryDirectory() as state:
-        broker = subprocess.Popen([binary, "broker", "--bind", front, "--worker-bind", back,
-                                   "--state", state], stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL)
-        procs = [subprocess.Popen([binary, "worker", "--connect", back, "--threads", "1",
-                                   "--maps", os.path.join(state, f"worker-maps-{i}")],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                 for i in range(workers)]
-        try:
-            with Connection(front, timeout=1.0) as c:
-                deadline = time.monotonic() + 30
-                while time.monotonic() < deadline:
-                    try:
-                        if len(c.status().workers) == workers:
-                            break
-                    except errors.BrokerUnavailable:
-                        pass
-                    time.sleep(0.1)
-                else:
-                    pytest.fail(f"{workers} workers never registered")
-            yield front, procs
-        finally:
-            for p in [*procs, broker]:
-                stop_process(p)
 
 
 def _hosting_worker(front: str, procs: list[subprocess.Popen]) -> subprocess.Popen:
@@ -83,7 +48,7 @@ def _observations(env: paddock.F110Env, steps: int, kill_after: int | None = Non
 
 
 def test_worker_killed_mid_episode_the_session_moves_to_another_worker() -> None:
-    with _cluster(2) as (front, procs):
+    with cluster(2) as (front, procs):
         env = paddock.F110Env(front, num_beams=32, timeout=20.0)
         victim = _hosting_worker(front, procs)
 
@@ -110,7 +75,7 @@ def test_worker_killed_mid_episode_the_session_moves_to_another_worker() -> None
 
 
 def test_worker_killed_with_no_other_worker_raises_session_lost() -> None:
-    with _cluster(1) as (front, procs):
+    with cluster(1) as (front, procs):
         env = paddock.F110Env(front, num_beams=32, timeout=20.0)
         env.reset(seed=1)
         env.step(ACTION)

@@ -1,12 +1,12 @@
 //! Benchmark jobs: one round of a benchmark task's episodes (B1 alone, B2 among
 //! obstacles, B3 head to head), reduced to its report.
 
-use paddock_broker::plan::{JobOutput, JobPlan, Maps, Round};
+use paddock_broker::plan::{JobOutput, JobPlan, Round, Stored};
 use paddock_proto::{Error, MapRef};
 use paddock_rollout::benchmark::{BenchmarkSpec, Task, report};
 use paddock_rollout::{EpisodeResult, RolloutError};
 
-use crate::{check_map, invalid, or_default, rollout_err, round_of};
+use crate::{check_map, invalid, or_default, register_models, rollout_err, round_of};
 
 /// A benchmark job; see the module documentation.
 #[derive(Debug)]
@@ -19,11 +19,15 @@ pub struct BenchmarkPlan {
 fn agent_from_proto(
     a: Option<&paddock_proto::AgentSpec>,
     dir: &std::path::Path,
+    stored: &dyn Stored,
     field: &str,
 ) -> Result<paddock_rollout::AgentSpec, Error> {
     let Some(a) = a else {
         return Err(invalid(field, format!("{field} is missing")));
     };
+    register_models(std::slice::from_ref(a), stored, |_| {
+        format!("{field}.driver")
+    })?;
     // checked as the only car of a minimal scenario, so every agent rule applies
     let probe = paddock_proto::Scenario {
         agents: vec![a.clone()],
@@ -44,17 +48,19 @@ fn agent_from_proto(
 
 impl BenchmarkPlan {
     /// A checked benchmark job (field names under `job_submit.benchmark`).
-    pub fn new(b: &paddock_proto::BenchmarkSpec, maps: &dyn Maps) -> Result<Self, Error> {
+    pub fn new(b: &paddock_proto::BenchmarkSpec, maps: &dyn Stored) -> Result<Self, Error> {
         let task: Task = b
             .task
             .parse()
             .map_err(|e: String| invalid("job_submit.benchmark.task", e))?;
         let (map, dir) = check_map(b.map.as_ref(), maps, "job_submit.benchmark.map")?;
-        let driver = agent_from_proto(b.driver.as_ref(), &dir, "job_submit.benchmark.driver")?;
+        let driver =
+            agent_from_proto(b.driver.as_ref(), &dir, maps, "job_submit.benchmark.driver")?;
         let opponent = match (&b.opponent, task) {
             (Some(o), _) => Some(agent_from_proto(
                 Some(o),
                 &dir,
+                maps,
                 "job_submit.benchmark.opponent",
             )?),
             (None, Task::B3) => Some(

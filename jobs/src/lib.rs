@@ -24,7 +24,7 @@ mod tune;
 
 use std::path::PathBuf;
 
-use paddock_broker::plan::{JobPlan, Maps, Planner, check_task_indices};
+use paddock_broker::plan::{JobPlan, Planner, Stored, check_task_indices};
 use paddock_proto::{
     Error, ErrorCode, JobSubmit, MapBundle, MapRef, RolloutBatch, error, job_submit,
 };
@@ -46,7 +46,7 @@ pub(crate) fn invalid(field: impl Into<String>, message: impl Into<String>) -> E
 /// its files.
 pub(crate) fn check_map(
     map: Option<&MapRef>,
-    maps: &dyn Maps,
+    maps: &dyn Stored,
     field: &str,
 ) -> Result<(MapRef, PathBuf), Error> {
     let Some(m) = map else {
@@ -68,11 +68,40 @@ pub(crate) fn check_map(
     }
 }
 
+/// Registers the ONNX models `agents` name (`onnx:<sha256>`) that this process has not
+/// registered yet, from the blobs the broker stores, so the checks that follow judge
+/// them like any driver; `driver_field(i)` names car `i`'s driver in errors. NOT_FOUND
+/// when a model is not stored (a client stores it with `PutBlob` first).
+pub(crate) fn register_models(
+    agents: &[paddock_proto::AgentSpec],
+    stored: &dyn Stored,
+    driver_field: impl Fn(usize) -> String,
+) -> Result<(), Error> {
+    for hash in paddock_wire::unregistered_models(agents) {
+        let i = agents
+            .iter()
+            .position(|a| paddock_wire::model_hash_of(&a.driver) == Some(hash.as_str()))
+            .unwrap_or(0);
+        let field = driver_field(i);
+        let Some(bytes) = stored.blob(&hash) else {
+            return Err(error(
+                ErrorCode::NotFound,
+                field.clone(),
+                format!(
+                    "{field} = onnx:{hash}: the model is not stored in this broker: send put_blob with the model's bytes, then retry"
+                ),
+            ));
+        };
+        paddock_wire::register_model(&hash, &bytes).map_err(|r| r.to_error(&field))?;
+    }
+    Ok(())
+}
+
 /// Checks every scenario of a batch (decoded, every field, its map stored) and every
 /// task index; errors name the field under `prefix`.
 pub(crate) fn check_batch(
     batch: &RolloutBatch,
-    maps: &dyn Maps,
+    maps: &dyn Stored,
     prefix: &str,
 ) -> Result<(), Error> {
     for (i, bytes) in batch.scenarios.iter().enumerate() {
@@ -89,6 +118,9 @@ pub(crate) fn check_batch(
                 )
             })?;
         let (_, dir) = check_map(wire.map.as_ref(), maps, &format!("{field}.map"))?;
+        register_models(&wire.agents, maps, |i| {
+            format!("{field}.agents[{i}].driver")
+        })?;
         paddock_wire::scenario_from_proto(&wire, &dir).map_err(|e| with_prefix(e, &field))?;
     }
     check_task_indices(batch, prefix)
@@ -98,7 +130,7 @@ impl Planner for Plans {
     fn check_batch(
         &self,
         batch: &RolloutBatch,
-        maps: &dyn Maps,
+        maps: &dyn Stored,
         prefix: &str,
     ) -> Result<(), Error> {
         check_batch(batch, maps, prefix)
@@ -108,7 +140,7 @@ impl Planner for Plans {
         paddock_wire::check_map_bundle(bundle)
     }
 
-    fn plan(&self, submit: &JobSubmit, maps: &dyn Maps) -> Result<Box<dyn JobPlan>, Error> {
+    fn plan(&self, submit: &JobSubmit, maps: &dyn Stored) -> Result<Box<dyn JobPlan>, Error> {
         match &submit.spec {
             None => Err(invalid(
                 "job_submit.spec",
@@ -124,7 +156,7 @@ impl Planner for Plans {
         &self,
         submit: &JobSubmit,
         state: &str,
-        maps: &dyn Maps,
+        maps: &dyn Stored,
     ) -> Result<Box<dyn JobPlan>, String> {
         let refused =
             |e: Error| format!("stored job spec is refused now: {}: {}", e.field, e.message);

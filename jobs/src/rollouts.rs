@@ -1,7 +1,7 @@
 //! Rollout jobs: a client's batch stored by the broker, run as one round, its outcomes
 //! kept as the workers sent them.
 
-use paddock_broker::plan::{JobOutput, JobPlan, Maps, Round};
+use paddock_broker::plan::{JobOutput, JobPlan, Round, Stored};
 use paddock_proto::{Error, RolloutBatch};
 
 use crate::check_batch;
@@ -15,7 +15,7 @@ pub struct RolloutsPlan {
 
 impl RolloutsPlan {
     /// A checked batch job (field names under `job_submit.rollouts`).
-    pub fn new(batch: &RolloutBatch, maps: &dyn Maps) -> Result<Self, Error> {
+    pub fn new(batch: &RolloutBatch, maps: &dyn Stored) -> Result<Self, Error> {
         check_batch(batch, maps, "job_submit.rollouts")?;
         Ok(Self {
             batch: batch.clone(),

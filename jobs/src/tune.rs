@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use paddock_broker::plan::{JobOutput, JobPlan, Maps, Round};
+use paddock_broker::plan::{JobOutput, JobPlan, Round, Stored};
 use paddock_proto::{Error, MapRef};
 use paddock_rollout::tune_job::{TuneJob, TuneSpec};
 use paddock_rollout::{RolloutError, Scenario};
@@ -38,7 +38,7 @@ fn load_circuit(dir: &std::path::Path, field: &str) -> Result<Arc<Circuit>, Erro
 
 impl TunePlan {
     /// A checked tune job of the submission `t` (field names under `job_submit.tune`).
-    pub fn new(t: &paddock_proto::TuneSpec, maps: &dyn Maps) -> Result<Self, Error> {
+    pub fn new(t: &paddock_proto::TuneSpec, maps: &dyn Stored) -> Result<Self, Error> {
         let (map, dir) = check_map(t.map.as_ref(), maps, "job_submit.tune.map")?;
         let circuit = load_circuit(&dir, "job_submit.tune.map")?;
         let driver = paddock_policy::driver_info(&t.driver)

@@ -19,12 +19,14 @@
 
 pub mod env;
 pub mod maps;
+pub mod models;
 pub mod results;
 pub mod scenario;
 #[cfg(test)]
 mod tests;
 
 pub use maps::{check_map_bundle, local_map, map_ref, shipped_bundles};
+pub use models::{ModelRefused, model_field, model_hash_of, register_model, unregistered_models};
 pub use results::{
     episode_result_from_proto, episode_result_to_proto, outcome_from_bytes, outcome_from_proto,
     outcome_to_bytes, outcome_to_proto,

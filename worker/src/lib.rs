@@ -34,6 +34,7 @@
 //! - A worker in the broker's own process (`paddock serve`) shares the broker's ZeroMQ
 //!   context and connects over `inproc://` ([`Worker::new_in`]): no TCP, no I/O thread.
 
+mod fetch;
 pub mod liveness;
 pub mod maps;
 pub mod render;

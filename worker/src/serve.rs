@@ -6,37 +6,37 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use paddock_proto::{Body, EnvOp, EnvReply, EnvRequest, ErrorCode, TaskAssign, error};
-use paddock_wire::with_prefix;
+use paddock_proto::{Body, EnvOp, EnvReply, EnvRequest, ErrorCode, error};
 
+use crate::fetch::Fetches;
 use crate::liveness::{Backoff, Liveness};
-use crate::maps::{MapCache, is_hash};
+use crate::maps::MapCache;
 use crate::sessions::Sessions;
-use crate::tasks::{Fetches, MapWaiter, Runner, Scenarios, decode_scenario};
+use crate::tasks::{Runner, Scenarios};
 use crate::{PREFETCH, WorkerConfig, WorkerError, WorkerStats, hostname, zmq_err};
 
 /// A worker: its pool, its caches and its sessions; [`Worker::run`] serves a broker.
 pub struct Worker {
-    cfg: WorkerConfig,
-    ctx: zmq::Context,
-    worker_id: String,
+    pub(crate) cfg: WorkerConfig,
+    pub(crate) ctx: zmq::Context,
+    pub(crate) worker_id: String,
     /// Tasks held at once (the credit declared to the broker).
-    capacity: usize,
+    pub(crate) capacity: usize,
     /// Threads of the pool.
-    threads: usize,
-    runner: Runner,
-    results_rx: zmq::Socket,
-    cache: MapCache,
-    scenarios: Scenarios,
-    fetches: Fetches,
-    sessions: Sessions,
-    in_flight: std::collections::HashSet<u64>,
-    next_request: u64,
+    pub(crate) threads: usize,
+    pub(crate) runner: Runner,
+    pub(crate) results_rx: zmq::Socket,
+    pub(crate) cache: MapCache,
+    pub(crate) scenarios: Scenarios,
+    pub(crate) fetches: Fetches,
+    pub(crate) sessions: Sessions,
+    pub(crate) in_flight: std::collections::HashSet<u64>,
+    pub(crate) next_request: u64,
     /// The broker does not know us (it restarted, or declared us dead): say hello again.
-    rehello: bool,
+    pub(crate) rehello: bool,
     /// Poll without blocking until then (armed by env-session traffic).
-    spin_until: Option<Instant>,
-    stats: Arc<WorkerStats>,
+    pub(crate) spin_until: Option<Instant>,
+    pub(crate) stats: Arc<WorkerStats>,
 }
 
 static WORKER_SEQ: AtomicU64 = AtomicU64::new(0);
@@ -174,13 +174,13 @@ impl Worker {
         self.send(sock, id, Body::WorkerHello(hello));
     }
 
-    fn request_id(&mut self) -> u64 {
+    pub(crate) fn request_id(&mut self) -> u64 {
         let id = self.next_request;
         self.next_request += 1;
         id
     }
 
-    fn send(&self, sock: &zmq::Socket, request_id: u64, body: Body) {
+    pub(crate) fn send(&self, sock: &zmq::Socket, request_id: u64, body: Body) {
         send_frames(sock, vec![paddock_proto::encode(request_id, body)]);
     }
 
@@ -374,19 +374,8 @@ impl Worker {
             Body::Error(e) => self.on_error(sock, request_id, e),
             Body::EnvRequest(r) => {
                 let payload = payload.into_iter().next().unwrap_or_default();
-                if r.op == EnvOp::EnvOpen as i32
-                    && let Some(hash) = self.sessions.missing_map(&payload)
-                {
-                    self.fetches
-                        .map_waiters
-                        .entry(hash.clone())
-                        .or_default()
-                        .push(MapWaiter::Open {
-                            request_id,
-                            session_id: r.session_id,
-                            payload,
-                        });
-                    return self.fetch(sock, true, hash);
+                if r.op == EnvOp::EnvOpen as i32 {
+                    return self.on_open(sock, request_id, r.session_id, payload);
                 }
                 self.on_env(sock, request_id, &r, &payload);
             }
@@ -408,7 +397,13 @@ impl Worker {
     }
 
     /// Answers an env-session request and arms the spin (see [`WorkerConfig::spin`]).
-    fn on_env(&mut self, sock: &zmq::Socket, request_id: u64, r: &EnvRequest, payload: &[u8]) {
+    pub(crate) fn on_env(
+        &mut self,
+        sock: &zmq::Socket,
+        request_id: u64,
+        r: &EnvRequest,
+        payload: &[u8],
+    ) {
         let reply = self.sessions.handle(r.session_id, r.op, payload);
         let mut frames = Vec::with_capacity(1 + reply.frames.len());
         frames.push(paddock_proto::encode(
@@ -423,7 +418,7 @@ impl Worker {
     }
 
     /// An env reply carrying only an error.
-    fn reply_env(
+    pub(crate) fn reply_env(
         &mut self,
         sock: &zmq::Socket,
         request_id: u64,
@@ -440,237 +435,11 @@ impl Worker {
         self.send(sock, request_id, Body::EnvReply(header));
     }
 
-    /// Asks the broker for a map (`map`) or blob by hash unless a request for it is in
-    /// flight.
-    fn fetch(&mut self, sock: &zmq::Socket, map: bool, hash: String) {
-        if self.fetches.asked(map, &hash) {
-            return;
-        }
-        let id = self.request_id();
-        self.fetches.requests.insert(id, (map, hash.clone()));
-        if map {
-            self.stats.maps_requested.fetch_add(1, Ordering::Relaxed);
-            self.send(
-                sock,
-                id,
-                Body::MapRequest(paddock_proto::MapRequest { hash }),
-            );
-        } else {
-            self.send(
-                sock,
-                id,
-                Body::BlobRequest(paddock_proto::BlobRequest { hash }),
-            );
-        }
-    }
-
-    fn on_task(&mut self, sock: &zmq::Socket, request_id: u64, t: TaskAssign) {
-        self.stats.tasks_received.fetch_add(1, Ordering::Relaxed);
-        self.in_flight.insert(t.task_id);
-        let hash = t.scenario_hash.clone();
-        if !is_hash(&hash) {
-            let e = error(
-                ErrorCode::InvalidArgument,
-                "task_assign.scenario_hash",
-                format!("{hash:?} is not a hex SHA-256 scenario hash"),
-            );
-            return self.runner.fail(request_id, t.task_id, e);
-        }
-        if let Some(scenario) = self.scenarios.get(&hash) {
-            return self.runner.spawn(request_id, &t, scenario);
-        }
-        self.fetches
-            .blob_waiters
-            .entry(hash.clone())
-            .or_default()
-            .push((request_id, t));
-        self.fetch(sock, false, hash);
-    }
-
-    /// A scenario (or other blob) from the broker: the tasks waiting for it run, or wait
-    /// for its map.
-    fn on_blob(&mut self, sock: &zmq::Socket, request_id: u64, blob: paddock_proto::Blob) {
-        self.fetches.requests.remove(&request_id);
-        let hash = blob.hash;
-        let waiting = self.fetches.blob_waiters.remove(&hash).unwrap_or_default();
-        if waiting.is_empty() {
-            return;
-        }
-        if paddock_proto::blob_hash(&blob.data) != hash {
-            self.stats.bad_messages.fetch_add(1, Ordering::Relaxed);
-            let e = error(
-                ErrorCode::Internal,
-                "task_assign.scenario_hash",
-                format!("the broker's bytes for scenario {hash} do not have that hash"),
-            );
-            for (rid, t) in waiting {
-                self.runner.fail(rid, t.task_id, e.clone());
-            }
-            return;
-        }
-        let wire = match decode_scenario(&blob.data) {
-            Ok(w) => w,
-            Err(e) => {
-                for (rid, t) in waiting {
-                    self.runner.fail(rid, t.task_id, e.clone());
-                }
-                return;
-            }
-        };
-        let map_hash = wire.map.as_ref().map(|m| m.hash.to_ascii_lowercase());
-        match map_hash {
-            Some(m) if is_hash(&m) && self.cache.get(&m).is_none() => {
-                let waiters = self.fetches.map_waiters.entry(m.clone()).or_default();
-                for (rid, t) in waiting {
-                    waiters.push(MapWaiter::Task {
-                        request_id: rid,
-                        task: t,
-                        scenario: Box::new(wire.clone()),
-                    });
-                }
-                self.fetch(sock, true, m);
-            }
-            _ => {
-                for (rid, t) in waiting {
-                    self.start(rid, t, &wire);
-                }
-            }
-        }
-    }
-
-    /// Runs a task whose scenario (wire form) names a map this worker holds, or
-    /// answers it with the error that names the bad field.
-    fn start(&mut self, request_id: u64, t: TaskAssign, wire: &paddock_proto::Scenario) {
-        if let Some(s) = self.scenarios.get(&t.scenario_hash) {
-            return self.runner.spawn(request_id, &t, s);
-        }
-        let dir = match wire.map.as_ref().map(|m| m.hash.to_ascii_lowercase()) {
-            Some(h) if is_hash(&h) => self.cache.get(&h),
-            _ => None,
-        };
-        let Some(dir) = dir else {
-            let e = error(
-                ErrorCode::InvalidArgument,
-                "task_assign.scenario.map.hash",
-                "the scenario names no map by a hex SHA-256 hash this worker could fetch",
-            );
-            return self.runner.fail(request_id, t.task_id, e);
-        };
-        match paddock_wire::scenario_from_proto(wire, &dir) {
-            Ok(s) => {
-                let s = Arc::new(s);
-                self.scenarios.insert(t.scenario_hash.clone(), s.clone());
-                self.runner.spawn(request_id, &t, s);
-            }
-            Err(e) => self.runner.fail(
-                request_id,
-                t.task_id,
-                with_prefix(e, "task_assign.scenario"),
-            ),
-        }
-    }
-
-    fn on_map(&mut self, sock: &zmq::Socket, request_id: u64, bundle: paddock_proto::MapBundle) {
-        self.fetches.requests.remove(&request_id);
-        let lower = bundle.hash.to_ascii_lowercase();
-        let waiting = self.fetches.map_waiters.remove(&lower).unwrap_or_default();
-        match self.cache.store(&bundle) {
-            Ok(_) => {
-                for w in waiting {
-                    match w {
-                        MapWaiter::Task {
-                            request_id,
-                            task,
-                            scenario,
-                        } => self.start(request_id, task, &scenario),
-                        // the sessions find the map in the cache now
-                        MapWaiter::Open {
-                            request_id,
-                            session_id,
-                            payload,
-                        } => {
-                            let r = EnvRequest {
-                                session_id,
-                                op: EnvOp::EnvOpen as i32,
-                            };
-                            self.on_env(sock, request_id, &r, &payload);
-                        }
-                    }
-                }
-            }
-            Err(e) => {
-                tracing::warn!(hash = %lower, error = %e.message, "refused a map bundle");
-                self.stats.bad_messages.fetch_add(1, Ordering::Relaxed);
-                let why = format!("its bundle was refused: {} ({})", e.message, e.field);
-                self.fail_map_waiters(sock, &lower, waiting, e.code, &why);
-            }
-        }
-    }
-
-    /// Answers everything that waited for the map `hash`, which could not be had, with an
-    /// error naming the hash and why (keeping the code of the failure it reports).
-    fn fail_map_waiters(
-        &mut self,
-        sock: &zmq::Socket,
-        hash: &str,
-        waiting: Vec<MapWaiter>,
-        code: i32,
-        why: &str,
-    ) {
-        let code = ErrorCode::try_from(code).unwrap_or(ErrorCode::NotFound);
-        for w in waiting {
-            match w {
-                MapWaiter::Task {
-                    request_id, task, ..
-                } => {
-                    let e = error(
-                        code,
-                        "task_assign.scenario.map.hash",
-                        format!(
-                            "map {hash}: the map is not on this worker and fetching it from the broker failed: {why}"
-                        ),
-                    );
-                    self.runner.fail(request_id, task.task_id, e);
-                }
-                MapWaiter::Open {
-                    request_id,
-                    session_id,
-                    ..
-                } => {
-                    let e = error(
-                        code,
-                        "env_open.map.hash",
-                        format!(
-                            "env_open.map.hash = {hash}: the map is not on this worker and fetching it from the broker failed: {why}"
-                        ),
-                    );
-                    let r = EnvRequest {
-                        session_id,
-                        op: EnvOp::EnvOpen as i32,
-                    };
-                    self.reply_env(sock, request_id, &r, Err(e));
-                }
-            }
-        }
-    }
-
     fn on_error(&mut self, sock: &zmq::Socket, request_id: u64, e: paddock_proto::Error) {
-        if let Some((map, hash)) = self.fetches.requests.remove(&request_id) {
-            let why = format!("the broker answered: {} ({})", e.message, e.field);
-            if map {
-                let waiting = self.fetches.map_waiters.remove(&hash).unwrap_or_default();
-                self.fail_map_waiters(sock, &hash, waiting, e.code, &why);
-            } else {
-                for (rid, t) in self.fetches.blob_waiters.remove(&hash).unwrap_or_default() {
-                    let e = error(
-                        ErrorCode::try_from(e.code).unwrap_or(ErrorCode::NotFound),
-                        "task_assign.scenario_hash",
-                        format!("scenario {hash}: fetching it from the broker failed: {why}"),
-                    );
-                    self.runner.fail(rid, t.task_id, e);
-                }
-            }
-        } else if e.code == ErrorCode::NotFound as i32 && e.field == "worker_id" {
+        if self.on_fetch_error(sock, request_id, &e) {
+            return;
+        }
+        if e.code == ErrorCode::NotFound as i32 && e.field == "worker_id" {
             self.rehello = true;
         } else {
             tracing::warn!(

@@ -1,10 +1,8 @@
-//! Rollout tasks: what a task needs before it can run, and running it.
+//! Rollout tasks: the scenarios a worker has seen, and running episodes.
 //!
 //! A task names its scenario by hash. The worker keeps the scenarios it has seen,
-//! decoded and checked ([`Scenarios`], bounded); a task whose scenario is new waits while
-//! the worker asks the broker for the scenario's bytes (once per hash), and then, if the
-//! scenario's map is new too, for the map (once per hash). Env opens wait for maps the
-//! same way. [`Fetches`] keeps what waits for what.
+//! decoded and checked ([`Scenarios`], bounded); what a new one waits for is in
+//! `fetch.rs`.
 //!
 //! Episodes run on a rayon pool ([`Runner`]); finished results come back to the socket
 //! thread through an in-process PUSH/PULL pair as ready-made frames (the `TaskResult`
@@ -57,47 +55,6 @@ impl Scenarios {
 
     pub fn is_empty(&self) -> bool {
         self.by_hash.is_empty()
-    }
-}
-
-/// Something waiting for a map.
-#[derive(Debug)]
-pub enum MapWaiter {
-    /// A task whose scenario (its hash and wire form) names the map.
-    Task {
-        request_id: u64,
-        task: TaskAssign,
-        scenario: Box<paddock_proto::Scenario>,
-    },
-    /// An env open (its request id, session id and payload).
-    Open {
-        request_id: u64,
-        session_id: u64,
-        payload: Vec<u8>,
-    },
-}
-
-/// What waits for which fetch from the broker; every hash is asked for once.
-#[derive(Debug, Default)]
-pub struct Fetches {
-    /// Fetch requests in flight: request id -> (is a map, hash).
-    pub requests: HashMap<u64, (bool, String)>,
-    /// Tasks waiting for their scenario, by scenario hash (with their request ids).
-    pub blob_waiters: HashMap<String, Vec<(u64, TaskAssign)>>,
-    /// Tasks and opens waiting for a map, by map hash (lower case).
-    pub map_waiters: HashMap<String, Vec<MapWaiter>>,
-}
-
-impl Fetches {
-    /// Whether a fetch of `hash` is in flight.
-    pub fn asked(&self, map: bool, hash: &str) -> bool {
-        self.requests.values().any(|(m, h)| *m == map && h == hash)
-    }
-
-    /// Forgets everything (a new connection: the broker requeued the tasks and
-    /// answered or replayed the opens).
-    pub fn clear(&mut self) {
-        *self = Self::default();
     }
 }
 

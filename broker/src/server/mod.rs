@@ -13,117 +13,29 @@
 //! `BrokerStatus.errors`) and logged, and the broker goes on serving everyone else.
 //!
 //! The env-session routing lives in `env.rs`, task dispatch and batch reduction in
-//! `tasks.rs`, the traffic with the back office in `office.rs`.
+//! `tasks.rs`, the traffic with the back office in `office.rs`, workers (hello, bye,
+//! liveness timers) and the status in `workers.rs`, the configuration in `config.rs`.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use paddock_libzmq::{Authenticator, Curve};
-use paddock_proto::{Body, BrokerStatus, ErrorCode, WorkerStatus, WorkerWelcome, code_name, error};
+use paddock_proto::{Body, ErrorCode, code_name, error};
 
+mod config;
 mod env;
 mod office;
 mod tasks;
+mod workers;
 
-use crate::core::{
-    BlobLimits, Blobs, ClientKey, Dispatcher, Limits, Liveness, LogLimits, Sessions, SourceId,
-    WorkerKey,
-};
+pub use config::{BrokerConfig, BrokerError, DEFAULT_SPIN, Security};
+
+use crate::core::{Blobs, ClientKey, Dispatcher, Sessions, SourceId, WorkerKey};
 use crate::office::{Command, Event, Office, OfficeLimits};
 use crate::plan::Planner;
-use crate::state::{Store, StoreError};
-
-/// How to run a broker.
-#[derive(Debug, Clone)]
-pub struct BrokerConfig {
-    /// Client endpoint, e.g. `tcp://0.0.0.0:5555` (`tcp://127.0.0.1:0`: any free port).
-    pub frontend: String,
-    /// Worker endpoint.
-    pub backend: String,
-    /// The state directory (job database and maps).
-    pub state_dir: PathBuf,
-    pub liveness: Liveness,
-    pub limits: Limits,
-    /// Env-session replay logs: their bounds, and how long a session whose worker died
-    /// waits for another worker to be rebuilt on.
-    pub session_logs: LogLimits,
-    /// Scenario bytes held for the batches and job rounds in flight.
-    pub blobs: BlobLimits,
-    /// Larger frames are answered with TOO_LARGE unread.
-    pub max_message_bytes: usize,
-    /// Most jobs queued or running at once; more are refused with BUSY.
-    pub max_jobs: usize,
-    /// The poll timeout, i.e. the resolution of the broker's timers.
-    pub tick: Duration,
-    /// CURVE encryption and authentication; None: plain TCP (loopback and trusted
-    /// networks only).
-    pub security: Option<Security>,
-    /// A second worker endpoint, e.g. `inproc://paddock-workers`, for workers in this
-    /// process sharing the broker's ZeroMQ context (see [`Broker::bind_in`]): no TCP and
-    /// no I/O thread between them, two thread hand-offs fewer per env step.
-    pub local_backend: Option<String>,
-    /// After forwarding env-session traffic the loop polls without blocking for this
-    /// long before it sleeps: the reply (or the client's next step) usually comes
-    /// sooner, and a thread that never slept needs no wake-up. Rollout tasks never arm
-    /// it, and an idle broker never spins. Zero: always block.
-    pub spin: Duration,
-    /// Maps stored at start and listed by name in the status (the shipped maps), so
-    /// clients name them without uploading them.
-    pub maps: Vec<paddock_proto::MapBundle>,
-}
-
-/// A broker open to the network: its key pair and, per endpoint, the directory of
-/// public keys allowed in. A key file removed from a directory is refused from the
-/// next connection on.
-#[derive(Debug, Clone)]
-pub struct Security {
-    pub keys: paddock_libzmq::KeyPair,
-    pub client_keys: PathBuf,
-    pub worker_keys: PathBuf,
-}
-
-/// The default [`BrokerConfig::spin`].
-pub const DEFAULT_SPIN: Duration = Duration::from_micros(200);
-
-impl BrokerConfig {
-    /// The defaults: 1 s heartbeats, 3 missed = dead, 64 MiB messages, 10 ms ticks.
-    pub fn new(frontend: &str, backend: &str, state_dir: impl Into<PathBuf>) -> Self {
-        Self {
-            frontend: frontend.into(),
-            backend: backend.into(),
-            state_dir: state_dir.into(),
-            liveness: Liveness::default(),
-            limits: Limits::default(),
-            session_logs: LogLimits::default(),
-            blobs: BlobLimits::default(),
-            max_message_bytes: paddock_proto::MAX_MESSAGE_BYTES,
-            max_jobs: 1000,
-            tick: Duration::from_millis(10),
-            security: None,
-            local_backend: None,
-            spin: DEFAULT_SPIN,
-            maps: Vec::new(),
-        }
-    }
-}
-
-/// Why the broker could not start or stopped.
-#[derive(Debug, thiserror::Error)]
-pub enum BrokerError {
-    #[error("{what} {endpoint}: {source}")]
-    Socket {
-        what: &'static str,
-        endpoint: String,
-        source: zmq::Error,
-    },
-    #[error(transparent)]
-    Store(#[from] StoreError),
-    #[error("starting the back-office thread: {0}")]
-    Thread(std::io::Error),
-}
+use crate::state::Store;
 
 /// A task's result as the broker keeps it: the payload frame the worker sent.
 type Outcome = zmq::Message;
@@ -638,210 +550,6 @@ impl Broker {
             | Body::JobResultRequest(_)
             | Body::JobWatch(_)) => self.tell_office(Command::Job { client, rid, body }),
             other => self.wrong_socket(Side::Client, &client, rid, &other),
-        }
-    }
-
-    fn on_worker(
-        &mut self,
-        worker: WorkerKey,
-        rid: u64,
-        body: Body,
-        payload: &mut Vec<zmq::Message>,
-    ) {
-        let known = self.disp.workers.get(&worker).is_some();
-        match body {
-            Body::WorkerHello(h) => self.on_hello(worker, rid, &h),
-            Body::TaskResult(r) => {
-                if let Some(outcome) = payload.pop() {
-                    self.on_task_result(&worker, r.task_id, outcome);
-                }
-                if !known {
-                    self.unknown_worker(&worker, rid);
-                }
-            }
-            Body::Heartbeat(_) => {
-                if !known {
-                    self.unknown_worker(&worker, rid);
-                }
-            }
-            Body::MapRequest(m) => self.tell_office(Command::MapRequest {
-                worker,
-                rid,
-                hash: m.hash,
-            }),
-            Body::BlobRequest(b) => self.on_blob_request(worker, rid, b.hash),
-            Body::Bye(b) => {
-                tracing::info!(peer = %hex(&worker), reason = %b.reason, "worker left");
-                if let Some(info) = self.disp.workers.remove(&worker) {
-                    self.worker_gone(&worker, info.in_flight.into_iter().collect(), "left");
-                }
-            }
-            Body::EnvReply(r) => self.on_env_reply(worker, rid, r, std::mem::take(payload)),
-            Body::Error(e) => {
-                // a worker's error answers something of ours (a blob or map it could
-                // not use): logged, nothing waits for it
-                tracing::warn!(
-                    peer = %hex(&worker),
-                    code = code_name(e.code),
-                    field = %e.field,
-                    message = %e.message,
-                    "worker reported an error"
-                );
-            }
-            other => self.wrong_socket(Side::Worker, &worker, rid, &other),
-        }
-    }
-
-    fn on_hello(&mut self, worker: WorkerKey, rid: u64, h: &paddock_proto::WorkerHello) {
-        let now = self.now();
-        match self.disp.workers.hello(worker.clone(), h, now) {
-            Ok(old) => {
-                tracing::info!(
-                    worker_id = %h.worker_id,
-                    hostname = %h.hostname,
-                    capacity = h.capacity,
-                    "worker joined"
-                );
-                if !old.is_empty() {
-                    let r = self.disp.requeue(old);
-                    self.fail_exhausted(r.exhausted);
-                }
-                let welcome = WorkerWelcome {
-                    heartbeat_ms: self.cfg.liveness.interval.as_millis() as u32,
-                    liveness: self.cfg.liveness.liveness,
-                };
-                self.send(Side::Worker, &worker, rid, Body::WorkerWelcome(welcome));
-            }
-            Err(e) => {
-                let field = match e {
-                    crate::core::workers::HelloError::Capacity(_) => "worker_hello.capacity",
-                    crate::core::workers::HelloError::EmptyId => "worker_hello.worker_id",
-                };
-                self.refuse(
-                    Side::Worker,
-                    &worker,
-                    rid,
-                    error(ErrorCode::InvalidArgument, field, e.to_string()),
-                );
-            }
-        }
-    }
-
-    fn unknown_worker(&mut self, worker: &[u8], rid: u64) {
-        self.refuse(
-            Side::Worker,
-            worker,
-            rid,
-            error(
-                ErrorCode::NotFound,
-                "worker_id",
-                "this broker does not know this worker (declared dead, or the broker restarted): send worker_hello again",
-            ),
-        );
-    }
-
-    // ------------------------------------------------------------------ timers
-
-    fn on_timers(&mut self) {
-        let now = self.now();
-        let (tick, requeued) = self.disp.tick(now);
-        for (key, info) in &tick.dead {
-            tracing::warn!(
-                worker_id = %info.worker_id,
-                hostname = %info.hostname,
-                tasks_requeued = info.in_flight.len(),
-                "worker silent for {:?}: declared dead",
-                self.cfg.liveness.expiry()
-            );
-            self.worker_gone(key, Vec::new(), "died");
-        }
-        self.fail_exhausted(requeued.exhausted);
-        self.resume_sessions();
-        for key in tick.heartbeat {
-            let in_flight = self
-                .disp
-                .workers
-                .get(&key)
-                .map_or(0, |w| w.in_flight.len() as u32);
-            self.send(
-                Side::Worker,
-                &key,
-                0,
-                Body::Heartbeat(paddock_proto::Heartbeat { in_flight }),
-            );
-        }
-        let horizon = Instant::now() - Duration::from_secs(10).min(self.started.elapsed());
-        while self.stats.recent.front().is_some_and(|&t| t < horizon) {
-            self.stats.recent.pop_front();
-        }
-    }
-
-    /// Cleans up after a worker that left or died: requeues `tasks` (when it was not
-    /// done already) and stalls or loses its env sessions.
-    fn worker_gone(&mut self, worker: &[u8], tasks: Vec<u64>, how: &str) {
-        if !tasks.is_empty() {
-            let r = self.disp.requeue(tasks);
-            self.fail_exhausted(r.exhausted);
-        }
-        let orphans = self.sessions.worker_gone(worker, self.now());
-        for lost in orphans.lost {
-            self.session_lost(lost);
-        }
-        for sid in &orphans.stalled {
-            tracing::warn!(
-                session = sid,
-                peer = %hex(worker),
-                "env session's worker {how}: it waits to be replayed on another worker"
-            );
-        }
-        self.resume_sessions();
-    }
-
-    // ------------------------------------------------------------------ status
-
-    fn status(&self) -> BrokerStatus {
-        let now = self.now();
-        let window = self.started.elapsed().as_secs_f64().clamp(1e-3, 10.0);
-        BrokerStatus {
-            version: env!("CARGO_PKG_VERSION").into(),
-            workers: self
-                .disp
-                .workers
-                .iter()
-                .map(|(k, w)| WorkerStatus {
-                    worker_id: w.worker_id.clone(),
-                    hostname: w.hostname.clone(),
-                    capacity: w.capacity,
-                    in_flight: w.in_flight.len() as u32,
-                    tasks_done: w.tasks_done,
-                    last_seen_s: now.saturating_sub(w.last_seen).as_secs_f64(),
-                    env_sessions: self.sessions.count_on(k),
-                })
-                .collect(),
-            queue_depth: self.disp.tasks.queued() as u64,
-            tasks_in_flight: self.disp.workers.in_flight() as u64,
-            tasks_per_s: self.stats.recent.len() as f64 / window,
-            tasks_done: self.stats.tasks_done,
-            jobs_running: self.stats.jobs_active,
-            env_sessions: self.sessions.len() as u32,
-            sessions_replayed: self.sessions.stats().replayed,
-            sessions_lost: self.sessions.stats().lost,
-            maps: self
-                .cfg
-                .maps
-                .iter()
-                .map(|b| paddock_proto::MapRef {
-                    name: b.name.clone(),
-                    hash: b.hash.clone(),
-                })
-                .collect(),
-            errors: self
-                .stats
-                .errors
-                .iter()
-                .map(|(k, v)| (k.clone(), *v))
-                .collect(),
-            uptime_s: self.started.elapsed().as_secs_f64(),
         }
     }
 }
