@@ -245,6 +245,11 @@ impl Worker {
                     if now.duration_since(last_hello) >= live.interval() / 2 {
                         tracing::info!(broker = %self.cfg.connect, "broker does not know this worker; saying hello again");
                         self.stats.reconnects.fetch_add(1, Ordering::Relaxed);
+                        // as after a reconnect: a broker that forgot this worker (it
+                        // restarted, or declared it dead) requeued the tasks waiting for a
+                        // fetch, and a restarted one never answers the fetches in flight,
+                        // which would otherwise never be asked for again
+                        self.fetches.clear();
                         self.hello(&sock);
                         last_hello = now;
                         live.sent(now);

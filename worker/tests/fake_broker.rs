@@ -384,6 +384,58 @@ fn says_hello_again_to_a_restarted_broker_that_does_not_know_it() {
     worker.stop().unwrap();
 }
 
+/// A restarted broker never answers the fetches the worker asked of the old one: once
+/// the new one says it does not know the worker, a task naming the same scenario makes
+/// the worker ask for it again (it used to wait for the lost answer forever).
+#[test]
+fn asks_again_for_a_scenario_it_asked_of_a_broker_that_restarted() {
+    let broker = FakeBroker::new();
+    let maps = tempfile::tempdir().unwrap();
+    let mut cfg = config(&broker.endpoint, maps.path());
+    // long beats: no reconnect for silence (which also forgets fetches) in this test
+    cfg.heartbeat = Duration::from_secs(2);
+    let worker = WorkerThread::spawn(cfg).unwrap();
+    let (wid, _, hello, _) = broker.recv();
+    assert!(matches!(hello, Body::WorkerHello(_)));
+    let b = local_map("lakeside").unwrap();
+    let wire = scenario_to_proto(&scenario(), map_ref(&b));
+    let (bytes, hash) = blob(&wire);
+    broker.send(&wid, 1, assign(1, &hash, 0));
+    let (_, _, asked, _) = broker.recv();
+    assert!(matches!(asked, Body::BlobRequest(_)), "{asked:?}");
+    // the broker dies with the request unanswered; the new one does not know the worker
+    // (a worker says hello at most once per half beat)
+    std::thread::sleep(Duration::from_millis(1100));
+    broker.send(
+        &wid,
+        0,
+        Body::Error(paddock_proto::error(
+            ErrorCode::NotFound,
+            "worker_id",
+            "this broker does not know this worker",
+        )),
+    );
+    let (_, _, again, _) = broker.recv();
+    assert!(matches!(again, Body::WorkerHello(_)), "{again:?}");
+    // the new broker assigns a task of the same scenario: the worker asks for it again
+    broker.send(&wid, 2, assign(2, &hash, 0));
+    serve_blob(&broker, &wid, &hash, &bytes);
+    let (_, map_req_id, body, _) = broker.recv();
+    assert!(matches!(body, Body::MapRequest(_)), "{body:?}");
+    broker.send(&wid, map_req_id, Body::MapBundle(b.clone()));
+    let got = broker.recv();
+    let (task_id, outcome) = result(got);
+    assert_eq!(task_id, 2);
+    assert!(
+        matches!(
+            outcome.outcome,
+            Some(paddock_proto::task_outcome::Outcome::Episode(_))
+        ),
+        "{outcome:?}"
+    );
+    worker.stop().unwrap();
+}
+
 fn env_open(map: paddock_proto::MapRef, num_envs: u32) -> Option<Vec<u8>> {
     let o = paddock_proto::EnvOpen {
         map: Some(map),
