@@ -29,8 +29,9 @@ CYCLONE_LOOPBACK = (
 # Read by the Cyclone C library when the first participant of a domain is created.
 os.environ["CYCLONEDDS_URI"] = CYCLONE_LOOPBACK
 
-# 120..231 in blocks of 16: one domain per test below, a block per concurrent pytest run
-_DOMAIN_BASE = 120 + (os.getpid() % 7) * 16
+# 120..215 in blocks of 24: one domain per test below, a block per concurrent pytest run
+_DOMAIN_BLOCK = 24
+_DOMAIN_BASE = 120 + (os.getpid() % 4) * _DOMAIN_BLOCK
 _domains_taken = [0]
 
 
@@ -39,7 +40,9 @@ def domain_id():
     """A DDS domain (ROS_DOMAIN_ID) no other test of this run uses."""
     k = _domains_taken[0]
     _domains_taken[0] += 1
-    assert k < 16, "more than 16 interop tests: widen the domain blocks in conftest.py"
+    assert k < _DOMAIN_BLOCK, (
+        f"more than {_DOMAIN_BLOCK} interop tests: widen the domain blocks in conftest.py"
+    )
     return _DOMAIN_BASE + k
 
 

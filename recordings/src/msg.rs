@@ -1,10 +1,10 @@
 //! The ROS 2 messages the car's stack speaks, as plain serde structs.
 //!
 //! Field order and types follow the ROS 2 IDL of each message exactly, because CDR (the
-//! DDS wire encoding) is positional: a struct serialises as its fields in order with
-//! natural alignment, a `float64[36]` as 36 values with no length, a `float32[]` as a
-//! `u32` length and the values. Encoded with RustDDS's CDR serialiser these are
-//! byte-compatible with rclcpp / rclpy nodes (Humble and later).
+//! DDS wire encoding, [`crate::cdr`]) is positional: a struct serialises as its fields in
+//! order with natural alignment, a `float64[36]` as 36 values with no length, a
+//! `float32[]` as a `u32` length and the values. So encoded they are byte-compatible with
+//! rclcpp / rclpy nodes (Humble and later), on DDS and in bags alike.
 //!
 //! [`RosMessage`] adds the package and type name (DDS type `pkg::msg::dds_::Type_`) and
 //! the `ros2msg` schema text that MCAP files carry so Foxglove and `ros2 bag` can decode
@@ -58,6 +58,14 @@ impl Time {
         Self {
             sec: sec.min(i32::MAX as i64) as i32,
             nanosec,
+        }
+    }
+
+    /// From nanoseconds since the epoch (seconds beyond `i32` saturate).
+    pub fn from_nanos(ns: u64) -> Self {
+        Self {
+            sec: (ns / 1_000_000_000).min(i32::MAX as u64) as i32,
+            nanosec: (ns % 1_000_000_000) as u32,
         }
     }
 
@@ -292,6 +300,29 @@ pub struct TFMessage {
     pub transforms: Vec<TransformStamped>,
 }
 
+/// A message with a header stamp.
+pub trait Stamped {
+    fn stamp(&self) -> Time;
+}
+
+impl Stamped for LaserScan {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+
+impl Stamped for Odometry {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+
+impl Stamped for AckermannDriveStamped {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+
 macro_rules! schema {
     ($main:expr $(, $dep:expr)*) => {
         concat!($main $(, sep!(), $dep)*)
@@ -386,44 +417,10 @@ impl RosMessage for TFMessage {
     );
 }
 
-/// The CDR encapsulation header of little-endian plain CDR (XCDR1), as ROS 2 writes it.
-pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
-
-/// Serialise `msg` as a complete CDR payload (encapsulation header + little-endian body),
-/// the bytes a DDS sample and an MCAP `cdr` message carry.
-pub fn to_cdr<M: Serialize>(msg: &M) -> Result<Vec<u8>, String> {
-    let body =
-        cdr_encoding::to_vec::<M, byteorder::LittleEndian>(msg).map_err(|e| e.to_string())?;
-    let mut out = Vec::with_capacity(body.len() + 4);
-    out.extend_from_slice(&CDR_LE_HEADER);
-    out.extend_from_slice(&body);
-    Ok(out)
-}
-
-/// Decode a CDR payload (encapsulation header + body), either byte order.
-pub fn from_cdr<M: for<'de> Deserialize<'de>>(bytes: &[u8]) -> Result<M, String> {
-    if bytes.len() < 4 {
-        return Err(format!(
-            "{} bytes: too short for a CDR payload (needs a 4-byte header)",
-            bytes.len()
-        ));
-    }
-    let body = &bytes[4..];
-    let decoded = match (bytes[0], bytes[1]) {
-        (0x00, 0x01) => cdr_encoding::from_bytes::<M, byteorder::LittleEndian>(body),
-        (0x00, 0x00) => cdr_encoding::from_bytes::<M, byteorder::BigEndian>(body),
-        (a, b) => {
-            return Err(format!(
-                "CDR encapsulation {a:#04x} {b:#04x} is not plain CDR (XCDR1)"
-            ));
-        }
-    };
-    decoded.map(|(m, _)| m).map_err(|e| e.to_string())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cdr::{CDR_LE_HEADER, from_cdr, to_cdr};
 
     const SEP: &str =
         "================================================================================\n";
@@ -535,5 +532,13 @@ mod tests {
         assert_eq!(t, Time { sec: 2, nanosec: 0 });
         assert_eq!(Time::from_secs(-1.0), Time::default());
         assert_eq!(Time::from_secs(3.25).as_nanos(), 3_250_000_000);
+        assert_eq!(
+            Time::from_nanos(3_250_000_007),
+            Time {
+                sec: 3,
+                nanosec: 250_000_007
+            }
+        );
+        assert_eq!(Time::from_nanos(u64::MAX).sec, i32::MAX);
     }
 }
