@@ -25,10 +25,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use paddock_recordings::cdr::from_cdr;
-use paddock_recordings::msg::{AckermannDriveStamped, LaserScan, Odometry, RosMessage, Stamped};
+use paddock_recordings::msg::{
+    AckermannDriveStamped, LaserScan, Odometry, PlanarState, RosMessage, Stamped,
+};
 use paddock_recordings::write::McapBag;
 use paddock_recordings::{RecordingError, Truncation, read_bag};
-use paddock_sim::geometry::wrap_angle as wrap_pi;
 
 use crate::BridgeError;
 use crate::ros::{RosConfig, RosNode, Subscription, TopicNames};
@@ -192,12 +193,8 @@ pub struct GapRow {
     pub t: f64,
     pub steer_cmd: f64,
     pub speed_cmd: f64,
-    pub x: f64,
-    pub y: f64,
-    pub yaw: f64,
-    pub vx: f64,
-    pub vy: f64,
-    pub yaw_rate: f64,
+    /// The odometry: x, y, yaw (in [-pi, pi)), vx, vy, yaw_rate.
+    pub state: PlanarState,
 }
 
 /// The CSV header of the reality-gap layout.
@@ -266,18 +263,11 @@ pub fn read_gap_rows_reporting(
             k += 1;
         }
         let t0 = *t0.get_or_insert(*t);
-        let p = &o.pose.pose;
-        let tw = &o.twist.twist;
         rows.push(GapRow {
             t: (*t - t0) as f64 * 1e-9,
             steer_cmd: drive[k].1,
             speed_cmd: drive[k].2,
-            x: p.position.x,
-            y: p.position.y,
-            yaw: wrap_pi(p.orientation.yaw()),
-            vx: tw.linear.x,
-            vy: tw.linear.y,
-            yaw_rate: tw.angular.z,
+            state: o.planar_state(),
         });
     }
     if rows.is_empty() {
@@ -302,10 +292,11 @@ pub fn export_csv(
     let mut w = BufWriter::new(File::create(out).map_err(io)?);
     writeln!(w, "{GAP_CSV_HEADER}").map_err(io)?;
     for r in &rows {
+        let s = &r.state;
         writeln!(
             w,
             "{},{},{},{},{},{},{},{},{}",
-            r.t, r.steer_cmd, r.speed_cmd, r.x, r.y, r.yaw, r.vx, r.vy, r.yaw_rate
+            r.t, r.steer_cmd, r.speed_cmd, s.x, s.y, s.yaw, s.vx, s.vy, s.yaw_rate
         )
         .map_err(io)?;
     }
@@ -317,14 +308,6 @@ pub fn export_csv(
 mod tests {
     use super::*;
     use paddock_recordings::msg::{AckermannDrive, Header, Quaternion};
-
-    #[test]
-    fn wrap_pi_is_half_open() {
-        use std::f64::consts::PI;
-        assert_eq!(wrap_pi(PI), -PI);
-        assert!((wrap_pi(3.0 * PI / 2.0) + PI / 2.0).abs() < 1e-12);
-        assert_eq!(wrap_pi(0.5), 0.5);
-    }
 
     #[test]
     fn bag_round_trips_to_gap_rows() {
@@ -373,7 +356,7 @@ mod tests {
         // a command logged at the same time as an odometry message applies to it
         assert_eq!((rows[1].steer_cmd as f32, rows[1].speed_cmd), (-0.2, 3.0));
         for r in &rows {
-            assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.yaw));
+            assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.state.yaw));
         }
         let csv = dir.join("run.csv");
         assert_eq!(export_csv(&path, &csv, &topics).unwrap(), (4, None));

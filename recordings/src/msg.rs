@@ -255,6 +255,44 @@ pub struct Odometry {
     pub twist: TwistWithCovariance,
 }
 
+/// What an odometry message says of a car moving in the plane.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PlanarState {
+    /// Position in the header frame [m].
+    pub x: f64,
+    pub y: f64,
+    /// Heading in the header frame [rad], in [-pi, pi).
+    pub yaw: f64,
+    /// Velocities in the body (child) frame [m/s], as odometry's twist is given.
+    pub vx: f64,
+    pub vy: f64,
+    /// [rad/s].
+    pub yaw_rate: f64,
+}
+
+impl Odometry {
+    /// The planar state: the pose's x, y and yaw, the twist's forward, lateral and yaw
+    /// rates (the rest of a 3-D odometry message is not read).
+    pub fn planar_state(&self) -> PlanarState {
+        let p = &self.pose.pose;
+        let tw = &self.twist.twist;
+        // atan2 gives [-pi, pi]; pi is taken as -pi, so the range is half open
+        let yaw = p.orientation.yaw();
+        PlanarState {
+            x: p.position.x,
+            y: p.position.y,
+            yaw: if yaw >= std::f64::consts::PI {
+                yaw - std::f64::consts::TAU
+            } else {
+                yaw
+            },
+            vx: tw.linear.x,
+            vy: tw.linear.y,
+            yaw_rate: tw.angular.z,
+        }
+    }
+}
+
 /// ackermann_msgs/AckermannDrive.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct AckermannDrive {
@@ -489,6 +527,9 @@ mod tests {
         let back: Odometry = from_cdr(&b).unwrap();
         assert_eq!(back, m);
         assert!((back.pose.pose.orientation.yaw() - 2.0).abs() < 1e-12);
+        let planar = back.planar_state();
+        assert_eq!((planar.x, planar.y), (1.0, -2.0));
+        assert!((planar.yaw - 2.0).abs() < 1e-12);
         assert!(from_cdr::<Odometry>(&b[..b.len() - 8]).is_err());
         assert!(from_cdr::<Odometry>(&[0x00, 0x03, 0, 0, 1]).is_err());
     }
@@ -523,6 +564,25 @@ mod tests {
         assert_eq!(
             TFMessage::dds_type_name(),
             "tf2_msgs::msg::dds_::TFMessage_"
+        );
+    }
+
+    #[test]
+    fn planar_yaw_is_half_open() {
+        let mut o = Odometry::default();
+        o.pose.pose.orientation = Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 1.0,
+            w: 0.0,
+        };
+        assert_eq!(o.pose.pose.orientation.yaw(), std::f64::consts::PI);
+        assert_eq!(o.planar_state().yaw, -std::f64::consts::PI);
+        o.twist.twist.angular.z = 0.5;
+        o.twist.twist.linear.y = -0.25;
+        assert_eq!(
+            (o.planar_state().vy, o.planar_state().yaw_rate),
+            (-0.25, 0.5)
         );
     }
 

@@ -13,7 +13,7 @@ use paddock_recordings::msg::{
 use paddock_recordings::write::McapBag;
 use paddock_recordings::{Bag, RecordingError};
 
-use super::{Command, McapTopics, Recording, StateSample, clean, wrap_pi};
+use super::{Command, McapTopics, Recording, StateSample, clean};
 use crate::SysidError;
 
 /// Frame ids of the bags [`Recording::to_mcap`] writes.
@@ -160,16 +160,15 @@ fn secs_to_ns(t: f64) -> u64 {
 
 /// The state of an `Odometry` (twist in the child, i.e. body, frame); `t` is left 0.
 fn state_of(o: &Odometry) -> StateSample {
-    let p = &o.pose.pose;
-    let tw = &o.twist.twist;
+    let s = o.planar_state();
     StateSample {
         t: 0.0,
-        x: p.position.x,
-        y: p.position.y,
-        yaw: wrap_pi(p.orientation.yaw()),
-        vx: tw.linear.x,
-        vy: tw.linear.y,
-        yaw_rate: tw.angular.z,
+        x: s.x,
+        y: s.y,
+        yaw: s.yaw,
+        vx: s.vx,
+        vy: s.vy,
+        yaw_rate: s.yaw_rate,
     }
 }
 
@@ -216,18 +215,35 @@ fn odometry_message(ns: u64, s: &StateSample) -> Odometry {
 mod tests {
     use super::*;
 
-    fn csv(rows: usize) -> String {
-        let mut s = String::from("t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate\n");
-        for i in 0..rows {
-            let t = i as f64 * 0.025;
-            s.push_str(&format!("{t},0.1,2.0,{t},0,0.5,1.0,0.1,0.2\n"));
+    /// `n` states 25 ms apart driving along x, a command with each.
+    fn recording(n: usize) -> Recording {
+        let at = |i: usize| i as f64 * 0.025;
+        Recording {
+            commands: (0..n)
+                .map(|i| Command {
+                    t: at(i),
+                    steer: 0.1,
+                    speed: 2.0,
+                })
+                .collect(),
+            states: (0..n)
+                .map(|i| StateSample {
+                    t: at(i),
+                    x: at(i),
+                    y: 0.0,
+                    yaw: 0.5,
+                    vx: 1.0,
+                    vy: 0.1,
+                    yaw_rate: 0.2,
+                })
+                .collect(),
+            ..Recording::default()
         }
-        s
     }
 
     #[test]
     fn mcap_round_trip() {
-        let r = Recording::from_csv_str(&csv(200)).unwrap();
+        let r = recording(200);
         let topics = McapTopics {
             drive: "/car/drive".into(),
             odom: "/car/odom".into(),
@@ -257,7 +273,7 @@ mod tests {
     /// The bag's messages are the ROS types: what the bridge's `export-csv` reads too.
     #[test]
     fn the_bag_carries_the_ros_messages_and_their_schemas() {
-        let r = Recording::from_csv_str(&csv(120)).unwrap();
+        let r = recording(120);
         let bytes = r.to_mcap(&McapTopics::default()).unwrap();
         let bag = paddock_recordings::read_mcap(&bytes, Path::new("x.mcap"), &["/odom", "/drive"])
             .unwrap();
