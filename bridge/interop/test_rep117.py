@@ -10,11 +10,10 @@ drive node must answer each with zero speed, and drive again when the scan sees 
 
 import math
 import re
-import time
 
-from ros2_node import CycloneRosNode, default_qos, take_all
-from ros2_types import AckermannDriveStamped, LaserScan, Odometry
-from test_cyclone_interop import DISCOVERY_S, corridor_scan, failure, odometry, stamp_now
+from fake_car import FakeCar
+from ros2_types import LaserScan
+from test_cyclone_interop import corridor_scan, failure
 
 AHEAD_DEG = 15.0
 # what urg_node or REP 117 puts on a beam that sees something but gives no valid range
@@ -35,40 +34,18 @@ def with_ahead(scan: LaserScan, r: float) -> LaserScan:
 def test_blocked_or_invalid_returns_ahead_stop_the_car_and_clear_ones_release_it(
     paddock, domain_id
 ):
-    car = CycloneRosNode(domain_id)
-    scan_pub = car.publisher("/scan", LaserScan, default_qos(20))
-    odom_pub = car.publisher("/odom", Odometry, default_qos(10))
-    drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
+    car = FakeCar(domain_id)
     proc = paddock(
         "drive", "--driver", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
     )
-    x, speed, period = 0.0, 1.5, 0.025
+    assert car.wait_moving(proc), failure(proc, "no /drive command with speed reached Cyclone")
 
-    def feed(seconds, ahead=None):
-        """Sensors every 25 ms for `seconds`; the drive commands seen meanwhile."""
-        nonlocal x
-        got = []
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and proc.alive():
-            stamp = stamp_now()
-            scan = corridor_scan(stamp, left=0.6, right=0.6)
-            if ahead is not None:
-                scan = with_ahead(scan, ahead)
-            odom_pub.write(odometry(stamp, x, speed))
-            scan_pub.write(scan)
-            x += speed * period
-            time.sleep(period)
-            got.extend(take_all(drive_sub))
-        return got
-
-    moving = []
-    deadline = time.monotonic() + DISCOVERY_S
-    while not moving and time.monotonic() < deadline and proc.alive():
-        moving = [c for c in feed(0.25) if c.drive.speed > 0.0]
-    assert moving, failure(proc, "no /drive command with speed reached Cyclone")
+    def corridor(stamp, ahead=None):
+        scan = corridor_scan(stamp, left=0.6, right=0.6)
+        return scan if ahead is None else with_ahead(scan, ahead)
 
     for what, r in BLOCKED_AHEAD.items():
-        got = feed(1.0, ahead=r)
+        got = car.feed(1.0, scan=lambda stamp: corridor(stamp, r))
         assert got, failure(proc, f"{what}: no commands")
         # the stop comes with the first such scan; the last half second is all zero
         tail = [c.drive.speed for c in got[len(got) // 2 :]]
@@ -76,7 +53,7 @@ def test_blocked_or_invalid_returns_ahead_stop_the_car_and_clear_ones_release_it
             proc, f"{what} ahead: commanded {sorted(set(tail))} m/s"
         )
         # a clear scan releases the stop (the time-to-collision stop after 0.5 s clear)
-        clear = feed(1.5)
+        clear = car.feed(1.5, scan=corridor)
         assert clear and clear[-1].drive.speed > 0.0, failure(
             proc, f"after {what}: still {clear[-3:]}"
         )
