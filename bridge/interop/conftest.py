@@ -6,14 +6,17 @@ Discovery needs no network besides loopback: Cyclone is pinned to `lo` with mult
 and 127.0.0.1 as its unicast peer, using the well-known per-participant ports (participant
 index `auto`), so it sends its participant announcements to every same-host participant
 slot; RustDDS (under `paddock`) announces itself to the same slots on 127.0.0.1 as well as
-by multicast. Each test takes a DDS domain of its own (derived from the process id), so
-parallel runs and the Rust tests (domains 61-64) do not hear each other.
+by multicast. Each test takes a DDS domain of its own, from a block of domains the run
+holds a lock on, so parallel runs and the Rust tests (domains 61-69) do not hear each other.
 """
 
+import fcntl
 import os
 import pathlib
 import signal
 import subprocess
+import tempfile
+import time
 
 import pytest
 
@@ -29,18 +32,45 @@ CYCLONE_LOOPBACK = (
 # Read by the Cyclone C library when the first participant of a domain is created.
 os.environ["CYCLONEDDS_URI"] = CYCLONE_LOOPBACK
 
-# 120..231 in blocks of 16: one domain per test below, a block per concurrent pytest run
-_DOMAIN_BASE = 120 + (os.getpid() % 7) * 16
+# Domains 120..215 in four blocks of 24: one domain per test below, a block per pytest
+# run. A run claims its block with an exclusive lock on a file, so concurrent runs on one
+# host (two checkouts testing at once) never share a domain: a drive node of one run
+# would otherwise answer the other run's sensors.
+_DOMAIN_FIRST, _DOMAIN_BLOCK, _DOMAIN_BLOCKS = 120, 24, 4
 _domains_taken = [0]
 
 
+@pytest.fixture(scope="session")
+def _domain_block():
+    """The first domain of a block no other run on this host holds (waits for one)."""
+    deadline = time.monotonic() + 600.0
+    start = os.getpid() % _DOMAIN_BLOCKS
+    while True:
+        for i in range(_DOMAIN_BLOCKS):
+            block = (start + i) % _DOMAIN_BLOCKS
+            path = pathlib.Path(tempfile.gettempdir()) / f"paddock-interop-domains-{block}.lock"
+            f = open(path, "a")
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                f.close()
+                continue
+            yield _DOMAIN_FIRST + block * _DOMAIN_BLOCK
+            f.close()  # releases the lock
+            return
+        assert time.monotonic() < deadline, "no free block of DDS domains for 10 minutes"
+        time.sleep(1.0)
+
+
 @pytest.fixture
-def domain_id():
-    """A DDS domain (ROS_DOMAIN_ID) no other test of this run uses."""
+def domain_id(_domain_block):
+    """A DDS domain (ROS_DOMAIN_ID) no other test of this run, nor another run, uses."""
     k = _domains_taken[0]
     _domains_taken[0] += 1
-    assert k < 16, "more than 16 interop tests: widen the domain blocks in conftest.py"
-    return _DOMAIN_BASE + k
+    assert k < _DOMAIN_BLOCK, (
+        f"more than {_DOMAIN_BLOCK} interop tests: widen the domain blocks in conftest.py"
+    )
+    return _domain_block + k
 
 
 @pytest.fixture(scope="session")

@@ -136,8 +136,9 @@ class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
     transforms: sequence[TransformStamped] = field(default_factory=list)
 
 
-# The ROS graph record (`ros_discovery_info`, rmw_dds_common) in the layout of Iron and
-# later: a Gid is 16 bytes (Humble's is 24: `uint8[24] data`).
+# The ROS graph record (`ros_discovery_info`, rmw_dds_common), in the two layouts: from
+# Iron on a Gid is `uint8[16] data`; on Humble it is `char[24] data` (rmw's GUID and eight
+# zero bytes; IDL `char` of a .msg is an octet on the wire). Same DDS type names in both.
 @dataclass
 class Gid16(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
     data: array[uint8, 16] = field(default_factory=lambda: [0] * 16)
@@ -157,3 +158,24 @@ class ParticipantEntitiesInfo16(
 ):
     gid: Gid16 = field(default_factory=Gid16)
     node_entities_info_seq: sequence[NodeEntitiesInfo16] = field(default_factory=list)
+
+
+@dataclass
+class Gid24(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: array[uint8, 24] = field(default_factory=lambda: [0] * 24)
+
+
+@dataclass
+class NodeEntitiesInfo24(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: str = ""
+    node_name: str = ""
+    reader_gid_seq: sequence[Gid24] = field(default_factory=list)
+    writer_gid_seq: sequence[Gid24] = field(default_factory=list)
+
+
+@dataclass
+class ParticipantEntitiesInfo24(
+    IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
+):
+    gid: Gid24 = field(default_factory=Gid24)
+    node_entities_info_seq: sequence[NodeEntitiesInfo24] = field(default_factory=list)

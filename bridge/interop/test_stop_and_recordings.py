@@ -18,58 +18,29 @@ import time
 import pytest
 from mcap.reader import make_reader
 
+from fake_car import FakeCar
 from ros2_node import CycloneRosNode, default_qos, take_all, wait_until
 from ros2_types import AckermannDriveStamped, LaserScan, Odometry
-from test_cyclone_interop import (
-    DISCOVERY_S,
-    corridor_scan,
-    drive_cmd,
-    failure,
-    odometry,
-    stamp_now,
-)
+from test_cyclone_interop import corridor_scan, drive_cmd, failure, odometry, stamp_now
 
 SIGNALS = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
 
 
 @pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: s.name)
 def test_every_signal_stops_the_car(paddock, domain_id, sig):
-    car = CycloneRosNode(domain_id)
-    scan_pub = car.publisher("/scan", LaserScan, default_qos(20))
-    odom_pub = car.publisher("/odom", Odometry, default_qos(10))
-    drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
+    car = FakeCar(domain_id)
     proc = paddock(
         "drive", "--driver", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
     )
-    x, speed, period = 0.0, 1.5, 0.025
-
-    def feed(seconds, until=None):
-        """Fresh sensors every 25 ms for `seconds` (or until `until()` holds)."""
-        nonlocal x
-        got = []
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and not (until and until()):
-            stamp = stamp_now()
-            odom_pub.write(odometry(stamp, x, speed))
-            scan_pub.write(corridor_scan(stamp, left=0.8, right=1.2))
-            x += speed * period
-            time.sleep(period)
-            got.extend(take_all(drive_sub))
-        return got
-
-    moving = []
-    deadline = time.monotonic() + DISCOVERY_S
-    while not moving and time.monotonic() < deadline and proc.alive():
-        moving = [c for c in feed(0.25) if c.drive.speed > 0.0]
-    assert moving, failure(proc, "no /drive command with speed reached Cyclone")
-    before = feed(0.5)
+    assert car.wait_moving(proc), failure(proc, "no /drive command with speed reached Cyclone")
+    before = car.feed(0.5)
     assert before and before[-1].drive.speed > 0.0, before[-3:]
 
     # the signal arrives while the sensors are fresh and the driver wants to go on
     proc.proc.send_signal(sig)
-    after = feed(5.0, until=lambda: not proc.alive())
+    after = car.feed(5.0, until=lambda: not proc.alive())
     assert not proc.alive(), failure(proc, f"still running 5 s after {sig.name}")
-    after.extend(wait_until(lambda: take_all(drive_sub), 1.0) or [])
+    after.extend(wait_until(lambda: take_all(car.drive_sub), 1.0) or [])
     rc = proc.stop()
     assert rc == 0, failure(proc, f"exit status {rc} after {sig.name}")
     assert f"stopped by {sig.name}" in proc.output(), failure(proc, "signal not reported")
@@ -79,42 +50,19 @@ def test_every_signal_stops_the_car(paddock, domain_id, sig):
 
 
 def test_a_sensor_resending_old_data_stops_the_car(paddock, domain_id):
-    car = CycloneRosNode(domain_id)
-    scan_pub = car.publisher("/scan", LaserScan, default_qos(20))
-    odom_pub = car.publisher("/odom", Odometry, default_qos(10))
-    drive_sub = car.subscription("/drive", AckermannDriveStamped, default_qos(10))
+    car = FakeCar(domain_id)
     proc = paddock(
         "drive", "--driver", "follow-the-gap", "--max-speed", "2", "--domain-id", str(domain_id)
     )
-    x, period = 0.0, 0.025
-
-    def feed(seconds, stamp=None):
-        """Sensors every 25 ms; `stamp` fixed: the drivers re-send their old message."""
-        nonlocal x
-        got = []
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            s = stamp or stamp_now()
-            odom_pub.write(odometry(s, x, 1.5))
-            scan_pub.write(corridor_scan(s, left=0.8, right=1.2))
-            x += 1.5 * period
-            time.sleep(period)
-            got.extend(take_all(drive_sub))
-        return got
-
-    moving = []
-    deadline = time.monotonic() + DISCOVERY_S
-    while not moving and time.monotonic() < deadline and proc.alive():
-        moving = [c for c in feed(0.25) if c.drive.speed > 0.0]
-    assert moving, failure(proc, "no /drive command with speed reached Cyclone")
-    assert feed(0.5)[-1].drive.speed > 0.0
+    assert car.wait_moving(proc), failure(proc, "no /drive command with speed reached Cyclone")
+    assert car.feed(0.5)[-1].drive.speed > 0.0
     # the drivers hang, re-sending their last message at the usual rate
-    resent = feed(1.0, stamp=stamp_now())
+    resent = car.feed(1.0, stamp=stamp_now())
     assert len(resent) >= 20, failure(proc, f"{len(resent)} commands in 1 s")
     tail = resent[len(resent) // 2 :]
     assert all(c.drive.speed == 0.0 for c in tail), failure(proc, f"still driving: {tail[-3:]}")
     # fresh data again: the car drives on
-    again = feed(1.0)
+    again = car.feed(1.0)
     assert again and again[-1].drive.speed > 0.0, again[-3:]
     assert proc.stop() == 0, failure(proc, "exit status")
 

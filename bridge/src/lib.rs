@@ -2,7 +2,8 @@
 //!
 //! The team's car runs ROS 2 (f1tenth_system: LIDAR on `/scan`, VESC odometry on `/odom`,
 //! drive commands on `/drive`). This crate speaks that stack with no ROS installation,
-//! through `ros2-client` (pure-Rust DDS), so one static `paddock` binary can:
+//! through its own node layer over RustDDS (pure-Rust DDS, [`ros`]), so one static
+//! `paddock` binary can, on Humble as on Jazzy (the distribution is chosen at run time):
 //!
 //! - [`drive`]: run any Paddock driver (built-in or a `paddock tune` result) as a ROS 2
 //!   node, behind a safety layer ([`safety`]: stale-sensor stop, clamps, time-to-collision
@@ -16,20 +17,23 @@
 //! The decisions are sans-IO: [`safety::Safety`] and [`drive::DriveCore`] take messages and
 //! times as arguments and return commands, so stale-sensor, clamp and emergency-stop
 //! behaviour is unit-tested with a virtual clock; the ROS loops around them only move
-//! messages. Messages ([`msg`]) are serde structs in ROS 2 IDL field order, so RustDDS's
-//! CDR encoding is byte-compatible with rclcpp/rclpy nodes, and the same bytes go into
-//! MCAP files.
+//! messages. Messages ([`msg`], from `paddock-recordings`, shared with the reality-gap
+//! tool) are serde structs in ROS 2 IDL field order, encoded by one CDR codec
+//! (`paddock_recordings::cdr`) byte-compatible with rclcpp/rclpy nodes, on DDS and in
+//! MCAP files alike.
 
 pub mod drive;
 pub mod driver_spec;
 pub mod freshness;
 pub mod mount;
-pub mod msg;
 pub mod record;
 pub mod ros;
 pub mod safety;
 pub mod scan;
 pub mod sil;
+
+/// The car's ROS 2 messages (they live in `paddock-recordings`, with their CDR codec).
+pub use paddock_recordings::msg;
 
 use std::fmt::Display;
 

@@ -1,16 +1,12 @@
 //! Recordings: the car's topics into MCAP, and MCAP out to the reality-gap CSV.
 //!
 //! [`record`] subscribes to `/scan`, `/odom` and `/drive` and writes every message as a
-//! ROS 2 bag in MCAP: profile `ros2`, message encoding `cdr` (the DDS payload bytes), one
-//! `ros2msg` schema per type with its nested definitions, so Foxglove, `ros2 bag` (with
-//! the MCAP storage plugin) and `paddock sysid --recording run.mcap` read it directly.
-//!
-//! Each channel carries the `offered_qos_profiles` metadata that the ROS 2 MCAP profile
-//! requires (rosbag2's YAML, Humble's numeric layout, which later distros read too):
-//! reliable, volatile, keep last, the profile `ros2 bag play` then offers, which matches
-//! reliable and best-effort subscribers alike. Chunks are 256 KiB, so a recording cut
-//! off by a power failure loses at most its last quarter megabyte (under a second of
-//! the car's topics): [`read_gap_rows`] reads such a file up to its last complete chunk.
+//! ROS 2 bag in MCAP ([`paddock_recordings::write::McapBag`]: profile `ros2`, `cdr`
+//! messages, `ros2msg` schemas, `offered_qos_profiles` on every channel), so Foxglove,
+//! `ros2 bag` (with the MCAP storage plugin) and `paddock sysid --recording run.mcap` read
+//! it directly. Chunks are 256 KiB, so a recording cut off by a power failure loses at
+//! most its last quarter megabyte (under a second of the car's topics): [`read_gap_rows`]
+//! reads such a file up to its last complete chunk.
 //!
 //! A message's log time is its header stamp ([`LogClock::Header`], the default: the
 //! sensor's own clock, and the simulated timeline on a faster-than-real-time SIL car) or
@@ -28,13 +24,15 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use paddock_recordings::{Truncation, read_bag};
-use paddock_sim::geometry::wrap_angle as wrap_pi;
-use ros2_client::Subscription;
+use paddock_recordings::cdr::from_cdr;
+use paddock_recordings::msg::{
+    AckermannDriveStamped, LaserScan, Odometry, PlanarState, RosMessage, Stamped,
+};
+use paddock_recordings::write::McapBag;
+use paddock_recordings::{RecordingError, Truncation, read_bag};
 
 use crate::BridgeError;
-use crate::msg::{AckermannDriveStamped, LaserScan, Odometry, RosMessage, Time, from_cdr, to_cdr};
-use crate::ros::{RosConfig, RosNode, TopicNames};
+use crate::ros::{RosConfig, RosNode, Subscription, TopicNames};
 
 /// Which time a recorded message is logged at.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -57,138 +55,16 @@ impl std::str::FromStr for LogClock {
     }
 }
 
-/// A message with a header stamp.
-pub trait Stamped {
-    fn stamp(&self) -> Time;
-}
+/// The writer named in the MCAP header.
+const LIBRARY: &str = concat!("paddock-bridge ", env!("CARGO_PKG_VERSION"));
 
-impl Stamped for LaserScan {
-    fn stamp(&self) -> Time {
-        self.header.stamp
-    }
-}
-impl Stamped for Odometry {
-    fn stamp(&self) -> Time {
-        self.header.stamp
-    }
-}
-impl Stamped for AckermannDriveStamped {
-    fn stamp(&self) -> Time {
-        self.header.stamp
-    }
-}
-
-/// Chunk size of the recordings: what a power cut can lose at most.
-const CHUNK_BYTES: u64 = 256 * 1024;
-
-/// rosbag2's `offered_qos_profiles` for a channel: one profile, reliable (1), volatile
-/// (2), keep last (1) `depth`, default deadline, lifespan and liveliness.
-pub fn offered_qos_profiles(depth: usize) -> String {
-    let zero = "\n    sec: 0\n    nsec: 0";
-    format!(
-        "- history: 1\n  depth: {depth}\n  reliability: 1\n  durability: 2\n  \
-         deadline:{zero}\n  lifespan:{zero}\n  liveliness: 1\n  \
-         liveliness_lease_duration:{zero}\n  avoid_ros_namespace_conventions: false"
-    )
-}
-
-/// An MCAP ROS 2 bag being written.
-pub struct McapBag<W: Write + std::io::Seek> {
-    writer: mcap::Writer<W>,
-    channels: BTreeMap<String, u16>,
-    schemas: BTreeMap<String, u16>,
-    sequence: u32,
-    path: String,
-}
-
-fn mcap_err(path: &str) -> impl Fn(mcap::McapError) -> BridgeError + '_ {
-    move |e| BridgeError::Format {
-        path: path.to_string(),
-        message: format!("MCAP: {e}"),
-    }
-}
-
-impl<W: Write + std::io::Seek> McapBag<W> {
-    /// Start a bag on `w`; `path` names it in errors.
-    pub fn new(w: W, path: &str) -> Result<Self, BridgeError> {
-        let writer = mcap::WriteOptions::new()
-            .compression(None)
-            .chunk_size(Some(CHUNK_BYTES))
-            .profile("ros2")
-            .library(concat!("paddock-bridge ", env!("CARGO_PKG_VERSION")))
-            .create(w)
-            .map_err(mcap_err(path))?;
-        Ok(Self {
-            writer,
-            channels: BTreeMap::new(),
-            schemas: BTreeMap::new(),
-            sequence: 0,
-            path: path.to_string(),
-        })
-    }
-
-    /// Register `topic` carrying `M`.
-    pub fn add_topic<M: RosMessage>(&mut self, topic: &str) -> Result<(), BridgeError> {
-        let name = M::schema_name();
-        let schema = match self.schemas.get(&name) {
-            Some(&id) => id,
-            None => {
-                let id = self
-                    .writer
-                    .add_schema(&name, "ros2msg", M::SCHEMA.as_bytes())
-                    .map_err(mcap_err(&self.path))?;
-                self.schemas.insert(name, id);
-                id
-            }
-        };
-        let id = self
-            .writer
-            .add_channel(
-                schema,
-                topic,
-                "cdr",
-                &BTreeMap::from([("offered_qos_profiles".to_string(), offered_qos_profiles(5))]),
-            )
-            .map_err(mcap_err(&self.path))?;
-        self.channels.insert(topic.to_string(), id);
-        Ok(())
-    }
-
-    /// Write `msg` on `topic` (registered with [`McapBag::add_topic`]).
-    pub fn write<M: RosMessage>(
-        &mut self,
-        topic: &str,
-        msg: &M,
-        log_time_ns: u64,
-        publish_time_ns: u64,
-    ) -> Result<(), BridgeError> {
-        let Some(&channel_id) = self.channels.get(topic) else {
-            return Err(BridgeError::config(
-                "topic",
-                topic,
-                "not registered in this bag",
-            ));
-        };
-        let data = to_cdr(msg).map_err(|message| BridgeError::Format {
-            path: self.path.clone(),
-            message: format!("encoding a {topic} message: {message}"),
-        })?;
-        let header = mcap::records::MessageHeader {
-            channel_id,
-            sequence: self.sequence,
-            log_time: log_time_ns,
-            publish_time: publish_time_ns,
-        };
-        self.sequence = self.sequence.wrapping_add(1);
-        self.writer
-            .write_to_known_channel(&header, &data)
-            .map_err(mcap_err(&self.path))
-    }
-
-    /// Write the summary and hand back the sink.
-    pub fn finish(mut self) -> Result<W, BridgeError> {
-        self.writer.finish().map_err(mcap_err(&self.path))?;
-        Ok(self.writer.into_inner())
+fn bag_error(e: RecordingError) -> BridgeError {
+    match e {
+        RecordingError::Io { path, source } => BridgeError::Io {
+            path,
+            error: source,
+        },
+        RecordingError::Format { path, message } => BridgeError::Format { path, message },
     }
 }
 
@@ -244,7 +120,7 @@ fn drain<M: RosMessage + Stamped, W: Write + std::io::Seek>(
                     LogClock::Header => stamp_ns,
                     LogClock::Receive => received,
                 };
-                bag.write(topic, &m, log, stamp_ns)?;
+                bag.write(topic, &m, log, stamp_ns).map_err(bag_error)?;
                 *count += 1;
             }
             Ok(None) => return Ok(()),
@@ -271,11 +147,12 @@ pub fn record(
     }
     let shown = out.display().to_string();
     let file = File::create(out).map_err(|e| BridgeError::io(out, e))?;
-    let mut bag = McapBag::new(BufWriter::new(file), &shown)?;
+    let mut bag = McapBag::new(BufWriter::new(file), &shown, LIBRARY).map_err(bag_error)?;
     let t = &ros.topics;
-    bag.add_topic::<LaserScan>(&t.scan)?;
-    bag.add_topic::<Odometry>(&t.odom)?;
-    bag.add_topic::<AckermannDriveStamped>(&t.drive)?;
+    bag.add_topic::<LaserScan>(&t.scan).map_err(bag_error)?;
+    bag.add_topic::<Odometry>(&t.odom).map_err(bag_error)?;
+    bag.add_topic::<AckermannDriveStamped>(&t.drive)
+        .map_err(bag_error)?;
     let mut node = RosNode::new("paddock_record", ros)?;
     let scan = node.subscription::<LaserScan>(&t.scan)?;
     let odom = node.subscription::<Odometry>(&t.odom)?;
@@ -296,7 +173,7 @@ pub fn record(
         }
         std::thread::sleep(Duration::from_millis(1));
     }
-    let mut w = bag.finish()?;
+    let mut w = bag.finish().map_err(bag_error)?;
     w.flush().map_err(|e| BridgeError::io(out, e))?;
     let messages = BTreeMap::from([
         (t.scan.clone(), n_scan),
@@ -316,12 +193,8 @@ pub struct GapRow {
     pub t: f64,
     pub steer_cmd: f64,
     pub speed_cmd: f64,
-    pub x: f64,
-    pub y: f64,
-    pub yaw: f64,
-    pub vx: f64,
-    pub vy: f64,
-    pub yaw_rate: f64,
+    /// The odometry: x, y, yaw (in [-pi, pi)), vx, vy, yaw_rate.
+    pub state: PlanarState,
 }
 
 /// The CSV header of the reality-gap layout.
@@ -340,12 +213,7 @@ pub fn read_gap_rows_reporting(
     topics: &TopicNames,
 ) -> Result<(Vec<GapRow>, Option<Truncation>), BridgeError> {
     let bad = |message: String| BridgeError::format(path, message);
-    let bag = read_bag(path, &[topics.drive.as_str(), topics.odom.as_str()]).map_err(|e| {
-        BridgeError::Format {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        }
-    })?;
+    let bag = read_bag(path, &[topics.drive.as_str(), topics.odom.as_str()]).map_err(bag_error)?;
     for topic in [&topics.drive, &topics.odom] {
         if let Some(info) = bag.topics.get(topic.as_str())
             && info.encoding != "cdr"
@@ -395,18 +263,11 @@ pub fn read_gap_rows_reporting(
             k += 1;
         }
         let t0 = *t0.get_or_insert(*t);
-        let p = &o.pose.pose;
-        let tw = &o.twist.twist;
         rows.push(GapRow {
             t: (*t - t0) as f64 * 1e-9,
             steer_cmd: drive[k].1,
             speed_cmd: drive[k].2,
-            x: p.position.x,
-            y: p.position.y,
-            yaw: wrap_pi(p.orientation.yaw()),
-            vx: tw.linear.x,
-            vy: tw.linear.y,
-            yaw_rate: tw.angular.z,
+            state: o.planar_state(),
         });
     }
     if rows.is_empty() {
@@ -431,10 +292,11 @@ pub fn export_csv(
     let mut w = BufWriter::new(File::create(out).map_err(io)?);
     writeln!(w, "{GAP_CSV_HEADER}").map_err(io)?;
     for r in &rows {
+        let s = &r.state;
         writeln!(
             w,
             "{},{},{},{},{},{},{},{},{}",
-            r.t, r.steer_cmd, r.speed_cmd, r.x, r.y, r.yaw, r.vx, r.vy, r.yaw_rate
+            r.t, r.steer_cmd, r.speed_cmd, s.x, s.y, s.yaw, s.vx, s.vy, s.yaw_rate
         )
         .map_err(io)?;
     }
@@ -445,15 +307,7 @@ pub fn export_csv(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msg::{AckermannDrive, Header, Quaternion};
-
-    #[test]
-    fn wrap_pi_is_half_open() {
-        use std::f64::consts::PI;
-        assert_eq!(wrap_pi(PI), -PI);
-        assert!((wrap_pi(3.0 * PI / 2.0) + PI / 2.0).abs() < 1e-12);
-        assert_eq!(wrap_pi(0.5), 0.5);
-    }
+    use paddock_recordings::msg::{AckermannDrive, Header, Quaternion};
 
     #[test]
     fn bag_round_trips_to_gap_rows() {
@@ -461,8 +315,12 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("run.mcap");
         let topics = TopicNames::default();
-        let mut bag =
-            McapBag::new(BufWriter::new(File::create(&path).unwrap()), "run.mcap").unwrap();
+        let mut bag = McapBag::new(
+            BufWriter::new(File::create(&path).unwrap()),
+            "run.mcap",
+            LIBRARY,
+        )
+        .unwrap();
         bag.add_topic::<Odometry>(&topics.odom).unwrap();
         bag.add_topic::<AckermannDriveStamped>(&topics.drive)
             .unwrap();
@@ -498,7 +356,7 @@ mod tests {
         // a command logged at the same time as an odometry message applies to it
         assert_eq!((rows[1].steer_cmd as f32, rows[1].speed_cmd), (-0.2, 3.0));
         for r in &rows {
-            assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.yaw));
+            assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.state.yaw));
         }
         let csv = dir.join("run.csv");
         assert_eq!(export_csv(&path, &csv, &topics).unwrap(), (4, None));

@@ -168,8 +168,8 @@ fn epoch_now() -> f64 {
 
 /// One car's outgoing messages.
 struct CarTopics {
-    scan: ros2_client::Publisher<LaserScan>,
-    odom: ros2_client::Publisher<Odometry>,
+    scan: crate::ros::Publisher<LaserScan>,
+    odom: crate::ros::Publisher<Odometry>,
     scan_name: String,
     odom_name: String,
     frames: Frames,

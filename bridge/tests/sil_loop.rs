@@ -151,7 +151,7 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
         "the header clock keeps simulated time: {span} s vs {} s",
         sil.sim_time
     );
-    assert!(rows.iter().any(|r| r.speed_cmd > 3.0 && r.vx > 3.0));
+    assert!(rows.iter().any(|r| r.speed_cmd > 3.0 && r.state.vx > 3.0));
     let csv = tmp("loop.csv");
     let (n, truncation) =
         export_csv(&bag, &csv, &paddock_bridge::ros::TopicNames::default()).unwrap();

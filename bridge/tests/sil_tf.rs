@@ -15,7 +15,7 @@ use common::SilThread;
 
 /// Every message waiting on `sub`, oldest first.
 fn take_all<M: paddock_bridge::msg::RosMessage>(
-    sub: &ros2_client::Subscription<M>,
+    sub: &paddock_bridge::ros::Subscription<M>,
     out: &mut Vec<M>,
 ) {
     while let Ok(Some((m, _))) = sub.take() {

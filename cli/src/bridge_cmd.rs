@@ -10,7 +10,7 @@ use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
 use paddock_bridge::mount::LaserMount;
 use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
-use paddock_bridge::ros::{Frames, QosConfig, RosConfig, parse_domain_id};
+use paddock_bridge::ros::{Frames, QosConfig, RosConfig, RosDistro, parse_domain_id};
 use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
 use paddock_sim::collision::CollisionMode;
@@ -45,6 +45,11 @@ struct RosArgs {
     /// DDS domain (default: $ROS_DOMAIN_ID, else 0).
     #[arg(long)]
     domain_id: Option<String>,
+    /// The car's ROS 2 distribution: humble, iron, jazzy, kilted or rolling (default:
+    /// $ROS_DISTRO, else jazzy). It sets the layout of the ROS graph record that `ros2
+    /// node list` reads: 24-byte gids on Humble, 16 from Iron on.
+    #[arg(long)]
+    ros_distro: Option<String>,
     /// The car's LIDAR topic (sensor_msgs/LaserScan).
     #[arg(long, default_value = "/scan")]
     scan_topic: String,
@@ -103,10 +108,18 @@ struct RosArgs {
 impl RosArgs {
     /// The settings, with frame ids from `frames` unless given.
     fn config(&self, frames: Frames) -> Result<RosConfig> {
-        let mut c = RosConfig::from_env()?;
-        if let Some(d) = &self.domain_id {
-            c.domain_id = parse_domain_id(d).context("--domain-id")?;
-        }
+        let domain_id = match (&self.domain_id, std::env::var("ROS_DOMAIN_ID")) {
+            (Some(d), _) => parse_domain_id(d).context("--domain-id")?,
+            (None, Ok(d)) => {
+                parse_domain_id(&d).context("the environment variable ROS_DOMAIN_ID")?
+            }
+            (None, Err(_)) => 0,
+        };
+        let mut c = RosConfig {
+            domain_id,
+            distro: ros_distro(self.ros_distro.as_deref(), std::env::var("ROS_DISTRO").ok())?,
+            ..RosConfig::default()
+        };
         c.topics.scan = self.scan_topic.clone();
         c.topics.odom = self.odom_topic.clone();
         c.topics.drive = self.drive_topic.clone();
@@ -284,6 +297,28 @@ struct RecordArgs {
     clock: String,
     #[command(flatten)]
     ros: RosArgs,
+}
+
+/// The distribution from `--ros-distro`, else from `ROS_DISTRO` (`from_env`), else
+/// Jazzy's layout with a warning (the binary runs without a sourced ROS, where
+/// `ROS_DISTRO` is unset).
+fn ros_distro(flag: Option<&str>, from_env: Option<String>) -> Result<RosDistro> {
+    if let Some(f) = flag {
+        return f.parse().context("--ros-distro");
+    }
+    match from_env.filter(|v| !v.trim().is_empty()) {
+        Some(v) => v
+            .parse()
+            .context("the environment variable ROS_DISTRO (set --ros-distro to override it)"),
+        None => {
+            let d = RosDistro::default();
+            tracing::warn!(
+                "neither --ros-distro nor ROS_DISTRO is set: the ROS graph record is written \
+                 in {d}'s layout (Iron and later); pass --ros-distro humble on a Humble car"
+            );
+            Ok(d)
+        }
+    }
 }
 
 #[derive(Args)]
@@ -590,4 +625,32 @@ fn export(a: &ExportArgs) -> Result<()> {
     }
     outln!("wrote {} ({rows} rows)", a.out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_distribution_comes_from_the_flag_then_ros_distro_then_jazzy() {
+        let env = |v: &str| Some(v.to_string());
+        assert_eq!(
+            ros_distro(Some("humble"), env("jazzy")).unwrap(),
+            RosDistro::Humble
+        );
+        assert_eq!(ros_distro(None, env("humble")).unwrap(), RosDistro::Humble);
+        assert_eq!(ros_distro(None, env("iron")).unwrap(), RosDistro::Iron);
+        assert_eq!(ros_distro(None, None).unwrap(), RosDistro::Jazzy);
+        assert_eq!(ros_distro(None, env(" ")).unwrap(), RosDistro::Jazzy);
+        let e = format!("{:#}", ros_distro(None, env("foxy")).unwrap_err());
+        assert!(e.contains("ROS_DISTRO") && e.contains("\"foxy\""), "{e}");
+        let e = format!(
+            "{:#}",
+            ros_distro(Some("hubmle"), env("humble")).unwrap_err()
+        );
+        assert!(
+            e.contains("--ros-distro") && e.contains("humble, iron"),
+            "{e}"
+        );
+    }
 }

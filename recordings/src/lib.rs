@@ -1,6 +1,8 @@
-//! # paddock-recordings: reading the car's recordings
+//! # paddock-recordings: the car's messages and recordings
 //!
-//! A recording from the car comes in one of the forms ROS 2 writes:
+//! The ROS 2 messages the car's stack speaks ([`msg`]: LaserScan, Odometry,
+//! AckermannDriveStamped, ...) and their one CDR codec ([`cdr`]), and the recordings
+//! made of them. A recording from the car comes in one of the forms ROS 2 writes:
 //!
 //! - an **MCAP file** (`paddock bridge record`, or `ros2 bag record -s mcap`, the default
 //!   from Iron on). A file whose writer died before finalising it (a power cut, a kill)
@@ -13,10 +15,16 @@
 //!
 //! [`read_bag`] takes any of them and returns the messages of the topics asked for, in
 //! log-time order, as their serialized bytes (CDR with its encapsulation header, the same
-//! bytes in both storages); decoding the ROS messages is the caller's.
+//! bytes in both storages), which [`cdr::from_cdr`] decodes into [`msg`] types.
+//! [`write::McapBag`] writes an MCAP ROS 2 bag.
 //!
-//! Why a crate of its own: both the bridge (`export-csv`) and the reality-gap tool
-//! (`paddock sysid`) read recordings, and neither should depend on the other.
+//! Why a crate of its own: the bridge (on DDS, in `record` and `export-csv`) and the
+//! reality-gap tool (`paddock sysid`) speak the same messages and read the same
+//! recordings, and neither should depend on the other. It depends on no Paddock crate.
+
+pub mod cdr;
+pub mod msg;
+pub mod write;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -1,10 +1,10 @@
 //! The ROS 2 messages the car's stack speaks, as plain serde structs.
 //!
 //! Field order and types follow the ROS 2 IDL of each message exactly, because CDR (the
-//! DDS wire encoding) is positional: a struct serialises as its fields in order with
-//! natural alignment, a `float64[36]` as 36 values with no length, a `float32[]` as a
-//! `u32` length and the values. Encoded with RustDDS's CDR serialiser these are
-//! byte-compatible with rclcpp / rclpy nodes (Humble and later).
+//! DDS wire encoding, [`crate::cdr`]) is positional: a struct serialises as its fields in
+//! order with natural alignment, a `float64[36]` as 36 values with no length, a
+//! `float32[]` as a `u32` length and the values. So encoded they are byte-compatible with
+//! rclcpp / rclpy nodes (Humble and later), on DDS and in bags alike.
 //!
 //! [`RosMessage`] adds the package and type name (DDS type `pkg::msg::dds_::Type_`) and
 //! the `ros2msg` schema text that MCAP files carry so Foxglove and `ros2 bag` can decode
@@ -12,6 +12,9 @@
 
 use serde::de::{self, SeqAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+/// The `ros2msg` schemas ([`RosMessage::SCHEMA`]).
+mod schemas;
 
 /// A message with its ROS 2 type name and MCAP schema.
 pub trait RosMessage:
@@ -58,6 +61,14 @@ impl Time {
         Self {
             sec: sec.min(i32::MAX as i64) as i32,
             nanosec,
+        }
+    }
+
+    /// From nanoseconds since the epoch (seconds beyond `i32` saturate).
+    pub fn from_nanos(ns: u64) -> Self {
+        Self {
+            sec: (ns / 1_000_000_000).min(i32::MAX as u64) as i32,
+            nanosec: (ns % 1_000_000_000) as u32,
         }
     }
 
@@ -247,6 +258,44 @@ pub struct Odometry {
     pub twist: TwistWithCovariance,
 }
 
+/// What an odometry message says of a car moving in the plane.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PlanarState {
+    /// Position in the header frame [m].
+    pub x: f64,
+    pub y: f64,
+    /// Heading in the header frame [rad], in [-pi, pi).
+    pub yaw: f64,
+    /// Velocities in the body (child) frame [m/s], as odometry's twist is given.
+    pub vx: f64,
+    pub vy: f64,
+    /// [rad/s].
+    pub yaw_rate: f64,
+}
+
+impl Odometry {
+    /// The planar state: the pose's x, y and yaw, the twist's forward, lateral and yaw
+    /// rates (the rest of a 3-D odometry message is not read).
+    pub fn planar_state(&self) -> PlanarState {
+        let p = &self.pose.pose;
+        let tw = &self.twist.twist;
+        // atan2 gives [-pi, pi]; pi is taken as -pi, so the range is half open
+        let yaw = p.orientation.yaw();
+        PlanarState {
+            x: p.position.x,
+            y: p.position.y,
+            yaw: if yaw >= std::f64::consts::PI {
+                yaw - std::f64::consts::TAU
+            } else {
+                yaw
+            },
+            vx: tw.linear.x,
+            vy: tw.linear.y,
+            yaw_rate: tw.angular.z,
+        }
+    }
+}
+
 /// ackermann_msgs/AckermannDrive.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct AckermannDrive {
@@ -292,138 +341,33 @@ pub struct TFMessage {
     pub transforms: Vec<TransformStamped>,
 }
 
-macro_rules! schema {
-    ($main:expr $(, $dep:expr)*) => {
-        concat!($main $(, sep!(), $dep)*)
-    };
+/// A message with a header stamp.
+pub trait Stamped {
+    fn stamp(&self) -> Time;
 }
 
-/// The line between a ros2msg schema's definitions.
-macro_rules! sep {
-    () => {
-        "================================================================================\n"
-    };
-}
-
-/// The definitions every stamped message depends on: Header, then Time.
-macro_rules! header_defs {
-    () => {
-        concat!(
-            "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n",
-            sep!(),
-            "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
-        )
-    };
-}
-
-/// geometry_msgs/PoseWithCovariance and the definitions it depends on.
-macro_rules! pose_with_covariance_defs {
-    () => {
-        concat!(
-            "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n",
-            sep!(),
-            "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
-            sep!(),
-            "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n",
-            sep!(),
-            "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
-        )
-    };
-}
-
-impl RosMessage for LaserScan {
-    const PACKAGE: &'static str = "sensor_msgs";
-    const TYPE: &'static str = "LaserScan";
-    const SCHEMA: &'static str = schema!(
-        "std_msgs/Header header\nfloat32 angle_min\nfloat32 angle_max\nfloat32 angle_increment\nfloat32 time_increment\nfloat32 scan_time\nfloat32 range_min\nfloat32 range_max\nfloat32[] ranges\nfloat32[] intensities\n",
-        header_defs!()
-    );
-}
-
-impl RosMessage for Odometry {
-    const PACKAGE: &'static str = "nav_msgs";
-    const TYPE: &'static str = "Odometry";
-    const SCHEMA: &'static str = schema!(
-        "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist\n",
-        header_defs!(),
-        pose_with_covariance_defs!(),
-        "MSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist twist\nfloat64[36] covariance\n",
-        "MSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n",
-        "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
-    );
-}
-
-impl RosMessage for AckermannDriveStamped {
-    const PACKAGE: &'static str = "ackermann_msgs";
-    const TYPE: &'static str = "AckermannDriveStamped";
-    const SCHEMA: &'static str = schema!(
-        "std_msgs/Header header\nackermann_msgs/AckermannDrive drive\n",
-        header_defs!(),
-        "MSG: ackermann_msgs/AckermannDrive\nfloat32 steering_angle\nfloat32 steering_angle_velocity\nfloat32 speed\nfloat32 acceleration\nfloat32 jerk\n"
-    );
-}
-
-impl RosMessage for PoseWithCovarianceStamped {
-    const PACKAGE: &'static str = "geometry_msgs";
-    const TYPE: &'static str = "PoseWithCovarianceStamped";
-    const SCHEMA: &'static str = schema!(
-        "std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose\n",
-        header_defs!(),
-        pose_with_covariance_defs!()
-    );
-}
-
-impl RosMessage for TFMessage {
-    const PACKAGE: &'static str = "tf2_msgs";
-    const TYPE: &'static str = "TFMessage";
-    const SCHEMA: &'static str = schema!(
-        "geometry_msgs/TransformStamped[] transforms\n",
-        "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n",
-        header_defs!(),
-        "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n",
-        "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n",
-        "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
-    );
-}
-
-/// The CDR encapsulation header of little-endian plain CDR (XCDR1), as ROS 2 writes it.
-pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
-
-/// Serialise `msg` as a complete CDR payload (encapsulation header + little-endian body),
-/// the bytes a DDS sample and an MCAP `cdr` message carry.
-pub fn to_cdr<M: Serialize>(msg: &M) -> Result<Vec<u8>, String> {
-    let body =
-        cdr_encoding::to_vec::<M, byteorder::LittleEndian>(msg).map_err(|e| e.to_string())?;
-    let mut out = Vec::with_capacity(body.len() + 4);
-    out.extend_from_slice(&CDR_LE_HEADER);
-    out.extend_from_slice(&body);
-    Ok(out)
-}
-
-/// Decode a CDR payload (encapsulation header + body), either byte order.
-pub fn from_cdr<M: for<'de> Deserialize<'de>>(bytes: &[u8]) -> Result<M, String> {
-    if bytes.len() < 4 {
-        return Err(format!(
-            "{} bytes: too short for a CDR payload (needs a 4-byte header)",
-            bytes.len()
-        ));
+impl Stamped for LaserScan {
+    fn stamp(&self) -> Time {
+        self.header.stamp
     }
-    let body = &bytes[4..];
-    let decoded = match (bytes[0], bytes[1]) {
-        (0x00, 0x01) => cdr_encoding::from_bytes::<M, byteorder::LittleEndian>(body),
-        (0x00, 0x00) => cdr_encoding::from_bytes::<M, byteorder::BigEndian>(body),
-        (a, b) => {
-            return Err(format!(
-                "CDR encapsulation {a:#04x} {b:#04x} is not plain CDR (XCDR1)"
-            ));
-        }
-    };
-    decoded.map(|(m, _)| m).map_err(|e| e.to_string())
+}
+
+impl Stamped for Odometry {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
+}
+
+impl Stamped for AckermannDriveStamped {
+    fn stamp(&self) -> Time {
+        self.header.stamp
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cdr::{CDR_LE_HEADER, from_cdr, to_cdr};
 
     const SEP: &str =
         "================================================================================\n";
@@ -492,6 +436,9 @@ mod tests {
         let back: Odometry = from_cdr(&b).unwrap();
         assert_eq!(back, m);
         assert!((back.pose.pose.orientation.yaw() - 2.0).abs() < 1e-12);
+        let planar = back.planar_state();
+        assert_eq!((planar.x, planar.y), (1.0, -2.0));
+        assert!((planar.yaw - 2.0).abs() < 1e-12);
         assert!(from_cdr::<Odometry>(&b[..b.len() - 8]).is_err());
         assert!(from_cdr::<Odometry>(&[0x00, 0x03, 0, 0, 1]).is_err());
     }
@@ -530,10 +477,37 @@ mod tests {
     }
 
     #[test]
+    fn planar_yaw_is_half_open() {
+        let mut o = Odometry::default();
+        o.pose.pose.orientation = Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 1.0,
+            w: 0.0,
+        };
+        assert_eq!(o.pose.pose.orientation.yaw(), std::f64::consts::PI);
+        assert_eq!(o.planar_state().yaw, -std::f64::consts::PI);
+        o.twist.twist.angular.z = 0.5;
+        o.twist.twist.linear.y = -0.25;
+        assert_eq!(
+            (o.planar_state().vy, o.planar_state().yaw_rate),
+            (-0.25, 0.5)
+        );
+    }
+
+    #[test]
     fn time_conversions() {
         let t = Time::from_secs(1.999_999_999_9);
         assert_eq!(t, Time { sec: 2, nanosec: 0 });
         assert_eq!(Time::from_secs(-1.0), Time::default());
         assert_eq!(Time::from_secs(3.25).as_nanos(), 3_250_000_000);
+        assert_eq!(
+            Time::from_nanos(3_250_000_007),
+            Time {
+                sec: 3,
+                nanosec: 250_000_007
+            }
+        );
+        assert_eq!(Time::from_nanos(u64::MAX).sec, i32::MAX);
     }
 }

@@ -1,5 +1,6 @@
-//! ROS 2 plumbing: the domain, topic names, QoS and frame ids, and typed publishers and
-//! subscriptions over `ros2-client` (RustDDS: pure Rust, no ROS installation needed).
+//! ROS 2 plumbing: the domain, the distribution, topic names, QoS and frame ids, and typed
+//! publishers and subscriptions ([`node`], written over RustDDS: pure Rust, no ROS
+//! installation needed), listed in the ROS graph in the distribution's layout ([`graph`]).
 //!
 //! Defaults are those of f1tenth_system (`/scan`, `/odom`, `/drive`) and f1tenth_gym_ros
 //! (`/initialpose`, `/opp_scan`, `/opp_odom`, `/opp_drive`, `/tf`, `/tf_static`).
@@ -11,36 +12,24 @@
 //! tf2 fixes its QoS (reliable, transient local, keep last 1) so that a listener started
 //! later still receives the static transforms, and [`RosNode::static_publisher`] and
 //! [`RosNode::static_subscription`] use exactly that.
+//!
+//! Nothing here reads the environment: the command line resolves `ROS_DOMAIN_ID` and
+//! `ROS_DISTRO` into [`RosConfig`].
 
-use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher,
-    QosProfile, Subscription,
-    qos::{Durability, History, WhenFull},
-};
+mod adapter;
+pub mod graph;
+pub mod node;
+
+pub use graph::RosDistro;
+pub use node::{Publisher, RosNode, Subscription, publish, take_all, take_latest, take_newest};
 
 use crate::BridgeError;
-use crate::msg::RosMessage;
 
 /// Reliability and history depth of one side (publishers or subscriptions).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct QosConfig {
     pub reliable: bool,
     pub depth: usize,
-}
-
-impl QosConfig {
-    fn profile(&self) -> QosProfile {
-        let base = QosProfile::publisher_default()
-            .durability(Durability::Volatile)
-            .history(History::KeepLast {
-                depth: self.depth.max(1),
-            });
-        if self.reliable {
-            base.reliability_reliable(WhenFull::DEFAULT)
-        } else {
-            base.reliability_best_effort()
-        }
-    }
 }
 
 /// Topic names.
@@ -151,6 +140,8 @@ impl Frames {
 pub struct RosConfig {
     /// DDS domain (ROS_DOMAIN_ID).
     pub domain_id: u16,
+    /// The car's ROS 2 distribution (ROS_DISTRO): the layout of the graph record.
+    pub distro: RosDistro,
     pub namespace: String,
     pub topics: TopicNames,
     pub frames: Frames,
@@ -162,6 +153,7 @@ impl Default for RosConfig {
     fn default() -> Self {
         Self {
             domain_id: 0,
+            distro: RosDistro::default(),
             namespace: "/".into(),
             topics: TopicNames::default(),
             frames: Frames::default(),
@@ -178,15 +170,6 @@ impl Default for RosConfig {
 }
 
 impl RosConfig {
-    /// The defaults with the domain from `ROS_DOMAIN_ID` when it is set.
-    pub fn from_env() -> Result<Self, BridgeError> {
-        let mut c = Self::default();
-        if let Ok(v) = std::env::var("ROS_DOMAIN_ID") {
-            c.domain_id = parse_domain_id(&v)?;
-        }
-        Ok(c)
-    }
-
     /// Check the names and numbers, naming the offending field.
     pub fn validate(&self) -> Result<(), BridgeError> {
         if self.domain_id > 232 {
@@ -223,14 +206,6 @@ impl RosConfig {
     }
 }
 
-/// tf2's QoS for `/tf_static`: reliable, transient local, keep last 1.
-fn static_qos() -> QosProfile {
-    QosProfile::publisher_default()
-        .durability(Durability::TransientLocal)
-        .history(History::KeepLast { depth: 1 })
-        .reliability_reliable(WhenFull::DEFAULT)
-}
-
 /// Parse a ROS_DOMAIN_ID value.
 pub fn parse_domain_id(v: &str) -> Result<u16, BridgeError> {
     match v.trim().parse::<u16>() {
@@ -243,178 +218,51 @@ pub fn parse_domain_id(v: &str) -> Result<u16, BridgeError> {
     }
 }
 
-/// A ROS 2 topic name ("/scan", "/car1/odom") as `ros2-client` wants it.
-fn topic_name(field: &str, name: &str) -> Result<Name, BridgeError> {
-    if !name.starts_with('/') {
+/// Check one token of a ROS name: ASCII letters, digits and underscores, not starting
+/// with a digit, no doubled underscore (ROS 2's topic and node name rules).
+fn name_token(token: &str) -> Result<(), String> {
+    if token.is_empty() {
+        return Err("an empty name part (a doubled or trailing '/')".into());
+    }
+    if let Some(c) = token
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '_'))
+    {
+        return Err(format!(
+            "the character {c:?} (letters, digits and '_' only)"
+        ));
+    }
+    if token.starts_with(|c: char| c.is_ascii_digit()) {
+        return Err(format!("{token:?} starts with a digit"));
+    }
+    if token.contains("__") {
+        return Err(format!("{token:?} has a doubled underscore"));
+    }
+    Ok(())
+}
+
+/// Check an absolute ROS 2 topic name ("/scan", "/car1/odom"); it is returned as given.
+pub(crate) fn topic_name<'a>(field: &str, name: &'a str) -> Result<&'a str, BridgeError> {
+    let Some(rest) = name.strip_prefix('/') else {
         return Err(BridgeError::config(
             field,
             name,
             "must be an absolute topic name starting with '/'",
         ));
+    };
+    for token in rest.split('/') {
+        name_token(token).map_err(|why| BridgeError::config(field, name, &why))?;
     }
-    let (ns, base) = name.rsplit_once('/').unwrap_or(("", name));
-    let ns = if ns.is_empty() { "/" } else { ns };
-    Name::new(ns, base).map_err(|e| BridgeError::config(field, name, &format!("{e:?}")))
+    Ok(name)
 }
 
-/// One ROS 2 node on its own DDS participant.
-pub struct RosNode {
-    // Fields drop in order: the node before the context it lives in.
-    node: Node,
-    _context: Context,
-    config: RosConfig,
-}
-
-impl RosNode {
-    /// Join domain `config.domain_id` as node `name`.
-    pub fn new(name: &str, config: &RosConfig) -> Result<Self, BridgeError> {
-        config.validate()?;
-        let ros = |what: &str, e: &dyn std::fmt::Debug| BridgeError::Ros {
-            what: what.to_string(),
-            message: format!("{e:?}"),
-        };
-        let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
-            .map_err(|e| ros("creating the DDS participant", &e))?;
-        let node_name = NodeName::new(&config.namespace, name)
-            .map_err(|e| BridgeError::config("node name", name, &format!("{e:?}")))?;
-        let node = context
-            .new_node(node_name, NodeOptions::new().enable_rosout(false))
-            .map_err(|e| ros("creating the node", &e))?;
-        Ok(Self {
-            node,
-            _context: context,
-            config: config.clone(),
-        })
+/// Check a node's namespace ("/" or "/car1") and name ("paddock_drive").
+pub(crate) fn node_name(namespace: &str, name: &str) -> Result<(), BridgeError> {
+    name_token(name).map_err(|why| BridgeError::config("node name", name, &why))?;
+    if namespace != "/" {
+        topic_name("namespace", namespace)?;
     }
-
-    pub fn config(&self) -> &RosConfig {
-        &self.config
-    }
-
-    /// The DDS topic of `M` named `topic`.
-    fn topic<M: RosMessage>(
-        &mut self,
-        topic: &str,
-        qos: &QosProfile,
-    ) -> Result<ros2_client::dds::rustdds::Topic, BridgeError> {
-        let name = topic_name("topic", topic)?;
-        self.node
-            .create_topic(&name, MessageTypeName::new(M::PACKAGE, M::TYPE), qos)
-            .map_err(|e| BridgeError::Ros {
-                what: format!("creating topic {topic}"),
-                message: format!("{e:?}"),
-            })
-    }
-
-    /// A publisher of `M` on `topic` with the configured publish QoS.
-    pub fn publisher<M: RosMessage>(&mut self, topic: &str) -> Result<Publisher<M>, BridgeError> {
-        let qos = self.config.publish_qos.profile();
-        let t = self.topic::<M>(topic, &qos)?;
-        self.node
-            .create_publisher::<M>(&t, Some(qos))
-            .map_err(|e| BridgeError::Ros {
-                what: format!("creating a publisher on {topic}"),
-                message: format!("{e:?}"),
-            })
-    }
-
-    /// A publisher of `M` on `topic` with tf2's static QoS (reliable, transient local,
-    /// keep last 1): the last message reaches every subscriber that joins later.
-    pub fn static_publisher<M: RosMessage>(
-        &mut self,
-        topic: &str,
-    ) -> Result<Publisher<M>, BridgeError> {
-        let qos = static_qos();
-        let t = self.topic::<M>(topic, &qos)?;
-        self.node
-            .create_publisher::<M>(&t, Some(qos))
-            .map_err(|e| BridgeError::Ros {
-                what: format!("creating a latched publisher on {topic}"),
-                message: format!("{e:?}"),
-            })
-    }
-
-    /// A subscription with tf2's static QoS: receives what a [`Self::static_publisher`]
-    /// (or a tf2 `StaticTransformBroadcaster`) published before it joined.
-    pub fn static_subscription<M: RosMessage>(
-        &mut self,
-        topic: &str,
-    ) -> Result<Subscription<M>, BridgeError> {
-        let qos = static_qos();
-        let t = self.topic::<M>(topic, &qos)?;
-        self.node
-            .create_subscription::<M>(&t, Some(qos))
-            .map_err(|e| BridgeError::Ros {
-                what: format!("subscribing to {topic} (transient local)"),
-                message: format!("{e:?}"),
-            })
-    }
-
-    /// A subscription to `M` on `topic` with the configured subscribe QoS.
-    pub fn subscription<M: RosMessage>(
-        &mut self,
-        topic: &str,
-    ) -> Result<Subscription<M>, BridgeError> {
-        let qos = self.config.subscribe_qos.profile();
-        let t = self.topic::<M>(topic, &qos)?;
-        self.node
-            .create_subscription::<M>(&t, Some(qos))
-            .map_err(|e| BridgeError::Ros {
-                what: format!("subscribing to {topic}"),
-                message: format!("{e:?}"),
-            })
-    }
-}
-
-/// Take every waiting message, keeping the newest; read errors are logged and skipped
-/// (a malformed sample from a peer must not stop the car's loop).
-pub fn take_latest<M: RosMessage>(sub: &Subscription<M>, topic: &str) -> Option<M> {
-    take_newest(sub, topic).map(|(m, _)| m)
-}
-
-/// Take every waiting message, oldest first; read errors are logged and skipped.
-pub fn take_all<M: RosMessage>(sub: &Subscription<M>, topic: &str) -> Vec<M> {
-    let mut all = Vec::new();
-    loop {
-        match sub.take() {
-            Ok(Some((m, _))) => all.push(m),
-            Ok(None) => return all,
-            Err(e) => {
-                tracing::warn!(topic, error = ?e, "dropping an unreadable message");
-                return all;
-            }
-        }
-    }
-}
-
-/// [`take_latest`] with the newest message's DDS source timestamp (the publisher's wall
-/// clock when it wrote the sample), nanoseconds since the epoch.
-pub fn take_newest<M: RosMessage>(sub: &Subscription<M>, topic: &str) -> Option<(M, Option<i64>)> {
-    let mut latest = None;
-    loop {
-        match sub.take() {
-            Ok(Some((m, info))) => {
-                latest = Some((m, info.source_timestamp().map(|t| t.to_nanos())));
-            }
-            Ok(None) => break,
-            Err(e) => {
-                tracing::warn!(topic, error = ?e, "dropping an unreadable message");
-                break;
-            }
-        }
-    }
-    latest
-}
-
-/// Publish, logging (not failing) on a full or broken writer.
-pub fn publish<M: RosMessage>(publisher: &Publisher<M>, topic: &str, msg: M) -> bool {
-    match publisher.publish(msg) {
-        Ok(()) => true,
-        Err(e) => {
-            tracing::warn!(topic, error = ?e, "publish failed");
-            false
-        }
-    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -441,6 +289,21 @@ mod tests {
         assert_eq!(parse_domain_id(" 42 ").unwrap(), 42);
         assert!(topic_name("t", "/car1/odom").is_ok());
         assert!(topic_name("t", "/scan").is_ok());
+        for bad in [
+            "/",
+            "/scan/",
+            "//scan",
+            "/2scan",
+            "/sc__an",
+            "/sc an",
+            "/car-1/odom",
+        ] {
+            assert!(topic_name("t", bad).is_err(), "{bad}");
+        }
+        assert!(node_name("/", "paddock_drive").is_ok());
+        assert!(node_name("/car1", "paddock_drive").is_ok());
+        assert!(node_name("car1", "paddock_drive").is_err());
+        assert!(node_name("/", "paddock-drive").is_err());
         let mut c = RosConfig::default();
         c.frames.laser = "/laser".into();
         let e = c.validate().unwrap_err().to_string();

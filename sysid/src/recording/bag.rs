@@ -1,0 +1,296 @@
+//! A [`Recording`] from and to a ROS 2 bag: `ackermann_msgs/msg/AckermannDriveStamped`
+//! commands and `nav_msgs/msg/Odometry` states, through the messages and the CDR codec of
+//! `paddock-recordings` (the ones the bridge speaks on the car).
+
+use std::io::Cursor;
+use std::path::Path;
+
+use paddock_recordings::cdr::from_cdr;
+use paddock_recordings::msg::{
+    AckermannDrive, AckermannDriveStamped, Header, Odometry, Pose, PoseWithCovariance, Quaternion,
+    Time, Twist, TwistWithCovariance, Vector3,
+};
+use paddock_recordings::write::McapBag;
+use paddock_recordings::{Bag, RecordingError};
+
+use super::{Command, McapTopics, Recording, StateSample, clean};
+use crate::SysidError;
+
+/// Frame ids of the bags [`Recording::to_mcap`] writes.
+const ODOM_FRAME: &str = "map";
+const BASE_FRAME: &str = "base_link";
+
+fn format_error(e: RecordingError) -> SysidError {
+    SysidError::Format {
+        message: e.to_string(),
+    }
+}
+
+impl Recording {
+    /// Decode a ROS 2 bag: `ackermann_msgs/msg/AckermannDriveStamped` on the drive topic,
+    /// `nav_msgs/msg/Odometry` on the odometry topic, both CDR. Time is the log time,
+    /// from the first message of either topic.
+    pub fn from_mcap(bytes: &[u8], topics: &McapTopics) -> Result<Self, SysidError> {
+        let bag = paddock_recordings::read_mcap(
+            bytes,
+            Path::new("the MCAP recording"),
+            &[&topics.drive, &topics.odom],
+        )
+        .map_err(format_error)?;
+        Self::from_bag(bag, topics)
+    }
+
+    pub(super) fn from_bag(bag: Bag, topics: &McapTopics) -> Result<Self, SysidError> {
+        let mut drive = Vec::new();
+        let mut odom = Vec::new();
+        for msg in &bag.messages {
+            if msg.topic == topics.drive {
+                let d: AckermannDriveStamped =
+                    from_cdr(&msg.data).map_err(|e| SysidError::Format {
+                        message: format!("{} message {}: {e}", topics.drive, drive.len()),
+                    })?;
+                drive.push((
+                    msg.log_time,
+                    d.drive.steering_angle as f64,
+                    d.drive.speed as f64,
+                ));
+            } else if msg.topic == topics.odom {
+                let o: Odometry = from_cdr(&msg.data).map_err(|e| SysidError::Format {
+                    message: format!("{} message {}: {e}", topics.odom, odom.len()),
+                })?;
+                odom.push((msg.log_time, state_of(&o)));
+            }
+        }
+        let known = bag.topics.keys().cloned().collect::<Vec<_>>().join(", ");
+        if drive.is_empty() {
+            return Err(SysidError::Format {
+                message: format!(
+                    "no messages on the drive topic {:?} (topics in the file: {known})",
+                    topics.drive
+                ),
+            });
+        }
+        if odom.is_empty() {
+            return Err(SysidError::Format {
+                message: format!(
+                    "no messages on the odometry topic {:?} (topics in the file: {known})",
+                    topics.odom
+                ),
+            });
+        }
+        drive.sort_by_key(|d| d.0);
+        odom.sort_by_key(|o| o.0);
+        let t0 = drive[0].0.min(odom[0].0);
+        let secs = |ns: u64| (ns - t0) as f64 * 1e-9;
+        let mut rec = Recording::default();
+        if let Some(t) = &bag.truncation {
+            rec.warnings.push(t.to_string());
+        }
+        for (t, steer, speed) in drive {
+            if !(steer.is_finite() && speed.is_finite()) {
+                rec.warnings.push(format!(
+                    "non-finite drive command at t = {:.3} s skipped",
+                    secs(t)
+                ));
+                continue;
+            }
+            rec.commands.push(Command {
+                t: secs(t),
+                steer,
+                speed,
+            });
+        }
+        let mut non_finite = 0usize;
+        for (t, mut s) in odom {
+            s.t = secs(t);
+            if !(s.x.is_finite() && s.y.is_finite() && s.yaw.is_finite()) {
+                non_finite += 1;
+                continue;
+            }
+            rec.states.push(s);
+        }
+        if non_finite > 0 {
+            rec.warnings.push(format!(
+                "{non_finite} odometry messages with a non-finite pose skipped"
+            ));
+        }
+        let runs = clean::into_runs(rec.commands, rec.states, false, rec.warnings, "bag")?;
+        Ok(Self::join(runs))
+    }
+
+    /// Write a ROS 2 bag (uncompressed MCAP) with the drive and odometry topics.
+    pub fn to_mcap(&self, topics: &McapTopics) -> Result<Vec<u8>, SysidError> {
+        let library = concat!("paddock-sysid ", env!("CARGO_PKG_VERSION"));
+        let mut bag = McapBag::new(Cursor::new(Vec::new()), "the MCAP recording", library)
+            .map_err(format_error)?;
+        bag.add_topic::<AckermannDriveStamped>(&topics.drive)
+            .map_err(format_error)?;
+        bag.add_topic::<Odometry>(&topics.odom)
+            .map_err(format_error)?;
+        // merge both streams in time order
+        let mut events: Vec<(u64, bool, usize)> = self
+            .commands
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (secs_to_ns(c.t), true, i))
+            .chain(
+                self.states
+                    .iter()
+                    .enumerate()
+                    .map(|(i, s)| (secs_to_ns(s.t), false, i)),
+            )
+            .collect();
+        events.sort();
+        for (ns, is_drive, i) in events {
+            let written = if is_drive {
+                let c = self.commands[i];
+                bag.write(&topics.drive, &drive_message(ns, c.steer, c.speed), ns, ns)
+            } else {
+                bag.write(&topics.odom, &odometry_message(ns, &self.states[i]), ns, ns)
+            };
+            written.map_err(format_error)?;
+        }
+        Ok(bag.finish().map_err(format_error)?.into_inner())
+    }
+}
+
+fn secs_to_ns(t: f64) -> u64 {
+    (t * 1e9).round().max(0.0) as u64
+}
+
+/// The state of an `Odometry` (twist in the child, i.e. body, frame); `t` is left 0.
+fn state_of(o: &Odometry) -> StateSample {
+    let s = o.planar_state();
+    StateSample {
+        t: 0.0,
+        x: s.x,
+        y: s.y,
+        yaw: s.yaw,
+        vx: s.vx,
+        vy: s.vy,
+        yaw_rate: s.yaw_rate,
+    }
+}
+
+fn drive_message(ns: u64, steer: f64, speed: f64) -> AckermannDriveStamped {
+    AckermannDriveStamped {
+        header: Header::new(Time::from_nanos(ns), BASE_FRAME),
+        drive: AckermannDrive {
+            steering_angle: steer as f32,
+            speed: speed as f32,
+            ..AckermannDrive::default()
+        },
+    }
+}
+
+fn odometry_message(ns: u64, s: &StateSample) -> Odometry {
+    let mut o = Odometry {
+        header: Header::new(Time::from_nanos(ns), ODOM_FRAME),
+        child_frame_id: BASE_FRAME.into(),
+        pose: PoseWithCovariance::default(),
+        twist: TwistWithCovariance::default(),
+    };
+    o.pose.pose = Pose {
+        orientation: Quaternion::from_yaw(s.yaw),
+        ..Pose::default()
+    };
+    o.pose.pose.position.x = s.x;
+    o.pose.pose.position.y = s.y;
+    o.twist.twist = Twist {
+        linear: Vector3 {
+            x: s.vx,
+            y: s.vy,
+            z: 0.0,
+        },
+        angular: Vector3 {
+            x: 0.0,
+            y: 0.0,
+            z: s.yaw_rate,
+        },
+    };
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `n` states 25 ms apart driving along x, a command with each.
+    fn recording(n: usize) -> Recording {
+        let at = |i: usize| i as f64 * 0.025;
+        Recording {
+            commands: (0..n)
+                .map(|i| Command {
+                    t: at(i),
+                    steer: 0.1,
+                    speed: 2.0,
+                })
+                .collect(),
+            states: (0..n)
+                .map(|i| StateSample {
+                    t: at(i),
+                    x: at(i),
+                    y: 0.0,
+                    yaw: 0.5,
+                    vx: 1.0,
+                    vy: 0.1,
+                    yaw_rate: 0.2,
+                })
+                .collect(),
+            ..Recording::default()
+        }
+    }
+
+    #[test]
+    fn mcap_round_trip() {
+        let r = recording(200);
+        let topics = McapTopics {
+            drive: "/car/drive".into(),
+            odom: "/car/odom".into(),
+        };
+        let bytes = r.to_mcap(&topics).unwrap();
+        let back = Recording::from_mcap(&bytes, &topics).unwrap();
+        assert_eq!(back.states.len(), 200);
+        assert_eq!(back.commands.len(), 200);
+        assert!((back.states[50].x - r.states[50].x).abs() < 1e-9);
+        assert!((back.states[50].t - r.states[50].t).abs() < 1e-9);
+        assert!((back.states[50].yaw - 0.5).abs() < 1e-12);
+        assert_eq!(
+            (
+                back.states[9].vx,
+                back.states[9].vy,
+                back.states[9].yaw_rate
+            ),
+            (1.0, 0.1, 0.2)
+        );
+        assert!((back.commands[7].steer - 0.1).abs() < 1e-6);
+        let e = Recording::from_mcap(&bytes, &McapTopics::default()).unwrap_err();
+        assert!(e.to_string().contains("/car/drive"), "{e}");
+        let e = Recording::from_mcap(b"\x89MCAP0\r\ngarbage", &topics).unwrap_err();
+        assert!(e.to_string().contains("MCAP"), "{e}");
+    }
+
+    /// The bag's messages are the ROS types: what the bridge's `export-csv` reads too.
+    #[test]
+    fn the_bag_carries_the_ros_messages_and_their_schemas() {
+        let r = recording(120);
+        let bytes = r.to_mcap(&McapTopics::default()).unwrap();
+        let bag = paddock_recordings::read_mcap(&bytes, Path::new("x.mcap"), &["/odom", "/drive"])
+            .unwrap();
+        assert_eq!(
+            bag.topics["/drive"].type_name,
+            "ackermann_msgs/msg/AckermannDriveStamped"
+        );
+        assert!(bag.topics["/odom"].offered_qos_profiles.is_some());
+        let odom = bag.messages.iter().find(|m| m.topic == "/odom").unwrap();
+        let o: Odometry = from_cdr(&odom.data).unwrap();
+        assert_eq!(
+            (o.header.frame_id.as_str(), o.child_frame_id.as_str()),
+            (ODOM_FRAME, BASE_FRAME)
+        );
+        let drive = bag.messages.iter().find(|m| m.topic == "/drive").unwrap();
+        let d: AckermannDriveStamped = from_cdr(&drive.data).unwrap();
+        assert_eq!(Time::from_nanos(drive.log_time), d.header.stamp);
+        assert_eq!(d.drive.speed, 2.0);
+    }
+}
