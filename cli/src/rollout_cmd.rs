@@ -13,7 +13,7 @@ use paddock_rollout::benchmark::{BenchmarkReport, BenchmarkSpec, Task};
 use paddock_rollout::{
     AgentSpec, EpisodeResult, EpisodeTask, Executor, RolloutError, Scenario, task_seed,
 };
-use paddock_sim::track::DEFAULT_MAP;
+use paddock_sim::circuit::{Circuits, DEFAULT_MAP};
 
 use crate::video::VideoOptions;
 
@@ -141,7 +141,7 @@ pub fn resolve_driver(flag: &str, name: &str, endpoint: Option<&str>) -> Result<
     spec.register().with_context(|| format!("{flag} {name}"))
 }
 
-pub fn rollout(args: &RolloutArgs) -> Result<()> {
+pub fn rollout(args: &RolloutArgs, circuits: &Circuits) -> Result<()> {
     let driver = resolve_driver("--driver", &args.driver, args.endpoint.as_deref())?;
     let params = parse_params(&driver, args.params.as_deref())?;
     let mut scenario = Scenario::single(&driver)?;
@@ -172,7 +172,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         crate::video::check_encoder(path)?;
         tasks[args.video_episode].record = Some(args.video_opts.decimation()?);
     }
-    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
+    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads, circuits)?;
     let results = run_tasks(exec.as_ref(), &tasks, "rollout");
     let mut episodes = Vec::with_capacity(results.len());
     for (k, r) in results.into_iter().enumerate() {
@@ -180,7 +180,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
     }
     if let Some(path) = &args.video {
         let jobs = [(path.clone(), &*scenario, &episodes[args.video_episode])];
-        crate::video::write_episodes(&jobs, &args.video_opts)?;
+        crate::video::write_episodes(circuits, &jobs, &args.video_opts)?;
         eprintln!("wrote {}", path.display());
     }
     let laps: Vec<f64> = episodes
@@ -332,7 +332,7 @@ pub struct BenchmarkArgs {
     video_opts: VideoOptions,
 }
 
-pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
+pub fn benchmark(args: &BenchmarkArgs, circuits: &Circuits) -> Result<()> {
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
     let endpoint = args.endpoint.as_deref();
     let name = resolve_driver("--driver", &args.driver, endpoint)?;
@@ -382,7 +382,7 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
         }
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
+    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads, circuits)?;
     let results = run_tasks(exec.as_ref(), &tasks, &format!("benchmark {}", args.task));
     if let Some(Err(e)) = results.iter().find(|r| r.is_err()) {
         bail!("an episode failed: {e}");
@@ -398,7 +398,7 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
                     .map(|e| (dir.join(video_name(k)), &*t.scenario, e))
             })
             .collect();
-        crate::video::write_episodes(&jobs, &args.video_opts)?;
+        crate::video::write_episodes(circuits, &jobs, &args.video_opts)?;
         eprintln!("wrote {} videos into {}", jobs.len(), dir.display());
     }
     let report = paddock_rollout::benchmark::report(&spec, &results);

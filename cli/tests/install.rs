@@ -35,7 +35,7 @@ fn copied_binary_does_not_find_maps_through_the_source_tree() {
     let listed: serde_json::Value =
         serde_json::from_str(&run(&["maps", "list", "--json"])).unwrap();
     let listed = listed.as_array().unwrap();
-    let dirs = paddock_sim::track::list_circuit_dirs(&source);
+    let dirs = paddock_sim::circuit::list_circuit_dirs(&source);
     assert!(dirs.len() >= 3, "{dirs:?}");
     assert_eq!(listed.len(), dirs.len(), "{listed:?}");
     for d in &dirs {

@@ -24,7 +24,7 @@ pub mod scenario;
 #[cfg(test)]
 mod tests;
 
-pub use maps::{check_map_bundle, local_map, map_ref, shipped_bundles};
+pub use maps::{check_map_bundle, circuit_bundle, local_map, map_ref, shipped_bundles};
 pub use results::{
     episode_result_from_proto, episode_result_to_proto, outcome_from_bytes, outcome_from_proto,
     outcome_to_bytes, outcome_to_proto,
