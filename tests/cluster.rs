@@ -31,7 +31,7 @@ fn driver_tasks(driver: &str, n: usize, time_limit: f64, job_seed: u64) -> Vec<E
 }
 
 fn local(tasks: &[EpisodeTask]) -> Vec<EpisodeResult> {
-    LocalExecutor::new(2)
+    LocalExecutor::new(2, paddock_sim::circuit::Circuits::new())
         .unwrap()
         .run_batch(tasks, &|_| {})
         .into_iter()
@@ -40,7 +40,7 @@ fn local(tasks: &[EpisodeTask]) -> Vec<EpisodeResult> {
 }
 
 fn bundle() -> MapBundle {
-    local_map("lakeside").unwrap()
+    local_map(&paddock_sim::circuit::Circuits::new(), "lakeside").unwrap()
 }
 
 /// Runs a batch through the broker; `on_progress` sees every progress report.
@@ -208,13 +208,15 @@ fn c_broker_killed_mid_tuning_job_resumes_with_the_same_result() {
         crash_penalty: 100.0,
     };
     // the uninterrupted run, locally
-    let circuit = paddock_sim::track::Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = paddock_sim::circuit::Circuits::new()
+        .get("lakeside")
+        .unwrap();
     let mut base = Scenario::single("pure-pursuit").unwrap();
-    base.map = circuit.dir.display().to_string();
+    base.map = "lakeside".into();
     base.laps = 1;
     base.time_limit = 60.0 + 0.5 * circuit.track.length();
     let mut job = TuneJob::new(spec.clone(), base, circuit.track.length()).unwrap();
-    let exec = LocalExecutor::new(2).unwrap();
+    let exec = LocalExecutor::new(2, paddock_sim::circuit::Circuits::new()).unwrap();
     while let Some(round) = job.next_round().unwrap() {
         let results: Vec<EpisodeResult> = exec
             .run_batch(&round, &|_| {})

@@ -46,7 +46,7 @@ fn same_here_and_there(c: &Cluster, args: &[&str]) -> String {
 /// A batch of one task whose only car drives with `driver`; the broker's refusal.
 fn refusal(c: &Cluster, driver: &str) -> paddock_proto::Error {
     let mut client = c.client();
-    let b = local_map("lakeside").unwrap();
+    let b = local_map(&paddock_sim::circuit::Circuits::new(), "lakeside").unwrap();
     client.put_map(b.clone()).unwrap();
     let scenario = paddock_proto::Scenario {
         map: Some(map_ref(&b)),

@@ -572,8 +572,8 @@ pub fn run_drive(
 mod tests {
     use super::*;
     use crate::msg::{Pose, PoseWithCovariance, Quaternion, Twist, TwistWithCovariance, Vector3};
+    use paddock_sim::circuit::Circuits;
     use paddock_sim::params::VehicleParams;
-    use paddock_sim::track::Circuit;
 
     fn scan(n: usize, fov: f32, r: f32) -> LaserScan {
         LaserScan {
@@ -611,7 +611,7 @@ mod tests {
     }
 
     fn gap_core(safety: SafetyConfig) -> DriveCore {
-        let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+        let circuit = Circuits::new().get("lakeside").unwrap();
         let spec = DriverSpec::resolve("follow-the-gap", &[]).unwrap();
         let d = spec.build(&circuit, &VehicleParams::default()).unwrap();
         DriveCore::new(d, LidarConfig::default(), safety).unwrap()

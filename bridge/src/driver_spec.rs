@@ -9,9 +9,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use paddock_policy::{Driver, ParamSpec, build_driver, driver_info, is_model_path};
+use paddock_sim::circuit::Circuit;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 
 use crate::BridgeError;
 

@@ -31,11 +31,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use paddock_policy::Driver;
+use paddock_sim::circuit::Circuits;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose as SimPose;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, AgentConfig, Observation, Starts, World, WorldConfig};
 
 use crate::BridgeError;
@@ -88,7 +88,7 @@ pub struct SilOptions {
 impl Default for SilOptions {
     fn default() -> Self {
         Self {
-            map: paddock_sim::track::DEFAULT_MAP.into(),
+            map: paddock_sim::circuit::DEFAULT_MAP.into(),
             rate: 1.0,
             scan_hz: 40.0,
             odom_hz: 100.0,
@@ -286,14 +286,16 @@ fn odom_msg(obs: &Observation, i: usize, stamp: Time, f: &Frames) -> Odometry {
     }
 }
 
-/// Run the SIL car until `stop` is set, the laps are driven or the time is up.
+/// Run the SIL car on the map `options.map` names in `circuits` until `stop` is set,
+/// the laps are driven or the time is up.
 pub fn run_sil(
+    circuits: &Circuits,
     options: &SilOptions,
     ros: &RosConfig,
     stop: &AtomicBool,
 ) -> Result<SilSummary, BridgeError> {
     options.validate()?;
-    let circuit = Circuit::resolve(&options.map, &[])?;
+    let circuit = circuits.get(&options.map)?;
     let n = if options.opponent.is_some() { 2 } else { 1 };
     let config = WorldConfig {
         dt: 0.01,

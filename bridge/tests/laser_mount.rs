@@ -5,9 +5,9 @@ use paddock_bridge::drive::{DriveCore, DriverSpec};
 use paddock_bridge::mount::LaserMount;
 use paddock_bridge::msg::{LaserScan, Odometry};
 use paddock_bridge::safety::{Safety, SafetyConfig, StopReason};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 
 const N: usize = 1081;
 
@@ -45,7 +45,7 @@ fn scan_from(mount: &LaserMount, left: f64, right: f64, front: f64) -> LaserScan
 }
 
 fn gap_core(mount: LaserMount) -> DriveCore {
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let d = DriverSpec::resolve("follow-the-gap", &[])
         .unwrap()
         .build(&circuit, &VehicleParams::default())

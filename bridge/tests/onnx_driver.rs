@@ -8,9 +8,9 @@ use paddock_bridge::msg::{Header, LaserScan, Odometry, Quaternion, Time};
 use paddock_bridge::safety::SafetyConfig;
 use paddock_policy::build_driver;
 use paddock_policy::onnx::write::{self, D, Model, f32_input, f32_tensor, node};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Observation, Starts, World, WorldConfig};
 
 fn model_file(name: &str, bytes: &[u8]) -> String {
@@ -110,7 +110,7 @@ fn a_model_gives_the_same_action_bits_in_a_rollout_and_in_the_bridge() {
     assert!(spec.name.starts_with("onnx:"), "{}", spec.name);
     assert_eq!(spec.source, path);
     spec.check_lidar(&lidar).unwrap();
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let vehicle = VehicleParams::default();
     // the rollout's driver, by the same registered name
     let mut rollout_driver = build_driver(&spec.name, &[], &circuit, &vehicle).unwrap();
@@ -149,7 +149,7 @@ fn a_model_gives_the_same_action_bits_in_a_rollout_and_in_the_bridge() {
 fn a_nan_action_holds_the_car_stopped() {
     let path = model_file("nan.onnx", &write::nan_when_slow().bytes());
     let spec = DriverSpec::resolve(&path, &[]).unwrap();
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let vehicle = VehicleParams::default();
     let mut core = DriveCore::new(
         spec.build(&circuit, &vehicle).unwrap(),

@@ -17,10 +17,10 @@ use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::SilOptions;
 use paddock_policy::onnx::write;
 use paddock_rollout::{AgentSpec, Scenario, StartSpec, run_episode};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Starts, World, WorldConfig};
 
 mod common;
@@ -40,7 +40,7 @@ fn an_onnx_model_laps_the_sil_car_like_a_rollout() {
     let spec = DriverSpec::resolve(path.to_str().unwrap(), &[]).unwrap();
 
     // the plain rollout from the SIL's start (its grid at s = 0, LIDAR noise from seed 0)
-    let circuit = Circuit::resolve(MAP, &[]).unwrap();
+    let circuit = Circuits::new().get(MAP).unwrap();
     let world = World::new(circuit.clone(), WorldConfig::default()).unwrap();
     let start = world.start_poses_for(0, &Starts::Grid { s: 0.0 }).unwrap();
     let scenario = Scenario {
@@ -52,7 +52,9 @@ fn an_onnx_model_laps_the_sil_car_like_a_rollout() {
         collision_mode: CollisionMode::Terminate,
         ..Scenario::single(&spec.name).unwrap()
     };
-    let expected = run_episode(&scenario, 0, None).unwrap().agents[0]
+    let expected = run_episode(&paddock_sim::circuit::Circuits::new(), &scenario, 0, None)
+        .unwrap()
+        .agents[0]
         .lap_times
         .clone();
     assert_eq!(expected.len(), 1, "the rollout itself must lap");
@@ -77,7 +79,7 @@ fn an_onnx_model_laps_the_sil_car_like_a_rollout() {
     let drive = {
         let (ros, stop, spec) = (ros.clone(), stop.clone(), spec.clone());
         thread::spawn(move || {
-            let circuit = Circuit::resolve(MAP, &[]).unwrap();
+            let circuit = Circuits::new().get(MAP).unwrap();
             let options = DriveOptions {
                 safety: SafetyConfig {
                     max_speed: 20.0,

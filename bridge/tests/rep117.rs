@@ -7,9 +7,9 @@
 use paddock_bridge::drive::{DriveCore, DriverSpec};
 use paddock_bridge::msg::{LaserScan, Odometry};
 use paddock_bridge::safety::{Safety, SafetyConfig, StopReason};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 
 const N: usize = 1081;
 
@@ -57,7 +57,7 @@ fn moving(v: f64) -> Odometry {
 }
 
 fn gap_core() -> DriveCore {
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let d = DriverSpec::resolve("follow-the-gap", &[])
         .unwrap()
         .build(&circuit, &VehicleParams::default())

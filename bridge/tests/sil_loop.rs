@@ -18,10 +18,10 @@ use paddock_bridge::ros::{RosConfig, RosNode, publish, take_latest};
 use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::SilOptions;
 use paddock_rollout::{AgentSpec, Scenario, StartSpec, run_episode};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Starts, World, WorldConfig};
 use paddock_sysid::{AnalysisOptions, McapTopics, Recording, analyze};
 
@@ -46,7 +46,7 @@ fn tmp(name: &str) -> PathBuf {
 
 /// Pure pursuit in a plain rollout from the SIL's start pose: the lap times to match.
 fn rollout_laps(laps: u32) -> Vec<f64> {
-    let circuit = Circuit::resolve(MAP, &[]).unwrap();
+    let circuit = Circuits::new().get(MAP).unwrap();
     let world = World::new(circuit, WorldConfig::default()).unwrap();
     let start = world.start_poses_for(0, &Starts::Grid { s: 0.0 }).unwrap();
     let scenario = Scenario {
@@ -58,7 +58,7 @@ fn rollout_laps(laps: u32) -> Vec<f64> {
         collision_mode: CollisionMode::Terminate,
         ..Scenario::single("pure-pursuit").unwrap()
     };
-    let r = run_episode(&scenario, 0, None).unwrap();
+    let r = run_episode(&paddock_sim::circuit::Circuits::new(), &scenario, 0, None).unwrap();
     r.agents[0].lap_times.clone()
 }
 
@@ -88,7 +88,7 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
     let drive = {
         let (ros, stop) = (ros.clone(), stop.clone());
         thread::spawn(move || {
-            let circuit = Circuit::resolve(MAP, &[]).unwrap();
+            let circuit = Circuits::new().get(MAP).unwrap();
             let spec = DriverSpec::resolve("pure-pursuit", &[]).unwrap();
             let driver = spec.build(&circuit, &VehicleParams::default()).unwrap();
             let options = DriveOptions {
@@ -232,7 +232,7 @@ fn safety_stops_reach_the_car_over_dds() {
     let drive = {
         let (ros, stop) = (ros.clone(), stop.clone());
         thread::spawn(move || {
-            let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+            let circuit = Circuits::new().get("lakeside").unwrap();
             let spec = DriverSpec::resolve("follow-the-gap", &[]).unwrap();
             let driver = spec.build(&circuit, &VehicleParams::default()).unwrap();
             let options = DriveOptions {
@@ -329,7 +329,7 @@ fn sil_opponent_topics_and_initial_pose() {
         },
         &ros,
     );
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let (target, _, _) = circuit.track.at(30.0);
     let mut node = RosNode::new("opponent_driver", &ros).unwrap();
     let odom = node.subscription::<Odometry>("/odom").unwrap();

@@ -4,9 +4,9 @@
 use paddock_bridge::drive::{DriveCore, DriverSpec};
 use paddock_bridge::msg::{Header, LaserScan, Odometry, Time};
 use paddock_bridge::safety::{SafetyConfig, StopReason};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 
 const EPOCH: f64 = 1.7e9;
 
@@ -35,7 +35,7 @@ fn odom(stamp: f64) -> Odometry {
 }
 
 fn core() -> DriveCore {
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let d = DriverSpec::resolve("follow-the-gap", &[])
         .unwrap()
         .build(&circuit, &VehicleParams::default())
@@ -105,7 +105,7 @@ fn old_data_arriving_on_time_stops_the_car_at_once() {
     // by arrival alone the same messages were fresh: with the stamp age off (drift 1)
     // the car would have driven on
     let mut off = {
-        let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+        let circuit = Circuits::new().get("lakeside").unwrap();
         let d = DriverSpec::resolve("follow-the-gap", &[])
             .unwrap()
             .build(&circuit, &VehicleParams::default())

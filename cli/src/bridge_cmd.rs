@@ -13,8 +13,8 @@ use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
 use paddock_bridge::ros::{Frames, QosConfig, RosConfig, RosDistro, parse_domain_id};
 use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
+use paddock_sim::circuit::{Circuits, DEFAULT_MAP};
 use paddock_sim::collision::CollisionMode;
-use paddock_sim::track::{Circuit, DEFAULT_MAP};
 
 #[derive(Args)]
 pub struct BridgeArgs {
@@ -337,10 +337,10 @@ struct ExportArgs {
     odom_topic: String,
 }
 
-pub fn run(args: &BridgeArgs) -> Result<()> {
+pub fn run(args: &BridgeArgs, circuits: &Circuits) -> Result<()> {
     match args.command.as_ref() {
-        BridgeCommand::Drive(a) => drive(a),
-        BridgeCommand::Sil(a) => sil(a),
+        BridgeCommand::Drive(a) => drive(a, circuits),
+        BridgeCommand::Sil(a) => sil(a, circuits),
         BridgeCommand::Record(a) => rec(a),
         BridgeCommand::ExportCsv(a) => export(a),
     }
@@ -406,7 +406,7 @@ fn overrides(text: Option<&str>) -> Result<Vec<(String, f64)>> {
         .collect()
 }
 
-fn drive(a: &DriveArgs) -> Result<()> {
+fn drive(a: &DriveArgs, circuits: &Circuits) -> Result<()> {
     let ros = a.ros.config(Frames::default())?;
     let spec =
         DriverSpec::resolve(&a.driver, &overrides(a.params.as_deref())?).context("--driver")?;
@@ -415,7 +415,7 @@ fn drive(a: &DriveArgs) -> Result<()> {
         .clone()
         .or_else(|| spec.map.clone())
         .unwrap_or_else(|| DEFAULT_MAP.to_string());
-    let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("--map {map}"))?;
+    let circuit = circuits.get(&map).with_context(|| format!("--map {map}"))?;
     let driver = spec.build(&circuit, &args::vehicle(a.vehicle.as_deref())?)?;
     let options = DriveOptions {
         rate_hz: a.rate_hz,
@@ -514,7 +514,7 @@ fn drive(a: &DriveArgs) -> Result<()> {
     Ok(())
 }
 
-fn sil(a: &SilArgs) -> Result<()> {
+fn sil(a: &SilArgs, circuits: &Circuits) -> Result<()> {
     let ros = a.ros.config(Frames::f1tenth_gym_ros())?;
     let opponent = match a.opponent.as_deref() {
         None => None,
@@ -554,7 +554,7 @@ fn sil(a: &SilArgs) -> Result<()> {
         "SIL car on {} at {}x real time, domain {}; Ctrl-C ends",
         a.map, a.rate, ros.domain_id
     );
-    let s = run_sil(&options, &ros, stop);
+    let s = run_sil(circuits, &options, &ros, stop);
     report_signal();
     let s = s?;
     if a.json {

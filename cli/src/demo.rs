@@ -5,7 +5,7 @@ use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::Args;
 use paddock_rollout::{AgentSpec, Scenario, Termination, run_episode};
-use paddock_sim::track::DEFAULT_MAP;
+use paddock_sim::circuit::{Circuits, DEFAULT_MAP};
 
 #[derive(Args)]
 pub struct DemoArgs {
@@ -37,8 +37,8 @@ pub struct DemoArgs {
     json: bool,
 }
 
-pub fn run(args: &DemoArgs) -> Result<()> {
-    let driver = crate::rollout_cmd::resolve_driver("--driver", &args.driver, None)?;
+pub fn run(args: &DemoArgs, circuits: &Circuits) -> Result<()> {
+    let driver = crate::rollout_cmd::resolve_driver("--driver", &args.driver, None, circuits)?;
     let mut scenario = Scenario::single(&driver)?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
     let mut car = AgentSpec::with_defaults(&driver)?;
@@ -46,7 +46,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     scenario.agents = vec![car; args.agents];
     scenario.laps = args.laps;
     scenario.time_limit = args.time_limit;
-    let episode = run_episode(&scenario, args.seed, None)
+    let episode = run_episode(circuits, &scenario, args.seed, None)
         .with_context(|| format!("running a demo episode on map {:?}", scenario.map))?;
     if args.json {
         let agents: Vec<serde_json::Value> = episode

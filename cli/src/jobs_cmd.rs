@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use paddock_proto::{Body, JobInfo, JobState};
+use paddock_sim::circuit::Circuits;
 
 use crate::args::outln;
 use crate::remote::Remote;
@@ -83,8 +84,8 @@ fn status_json(s: &paddock_proto::BrokerStatus) -> serde_json::Value {
     })
 }
 
-pub fn status(args: &StatusArgs) -> Result<()> {
-    let mut remote = Remote::connect(&args.endpoint)?;
+pub fn status(args: &StatusArgs, circuits: &Circuits) -> Result<()> {
+    let mut remote = Remote::connect(&args.endpoint, circuits)?;
     let s = remote.status()?;
     if args.json {
         outln!("{}", serde_json::to_string_pretty(&status_json(&s))?);
@@ -234,8 +235,8 @@ pub fn job_result(remote: &mut Remote, job_id: &str) -> Result<paddock_proto::Jo
     }
 }
 
-pub fn jobs(args: &JobsArgs) -> Result<()> {
-    let mut remote = Remote::connect(&args.endpoint)?;
+pub fn jobs(args: &JobsArgs, circuits: &Circuits) -> Result<()> {
+    let mut remote = Remote::connect(&args.endpoint, circuits)?;
     match &args.command {
         JobsCommand::List => {
             let Body::JobListing(l) =
@@ -327,14 +328,19 @@ pub fn jobs(args: &JobsArgs) -> Result<()> {
 /// `paddock tune --endpoint`: the same tuning job run by the broker. Submits it,
 /// follows it with a progress bar (or, with `--detach`, prints the job id and returns)
 /// and prints the same report as a local run.
-pub fn tune_remote(args: &crate::tune_cmd::TuneArgs, endpoint: &str, detach: bool) -> Result<()> {
-    let (spec, base, circuit) = crate::tune_cmd::setup(args)?;
+pub fn tune_remote(
+    args: &crate::tune_cmd::TuneArgs,
+    endpoint: &str,
+    detach: bool,
+    circuits: &Circuits,
+) -> Result<()> {
+    let (spec, base, circuit) = crate::tune_cmd::setup(args, circuits)?;
     let vehicle = &base.agents[0].vehicle;
     let map = args
         .map
         .clone()
-        .unwrap_or_else(|| paddock_sim::track::DEFAULT_MAP.into());
-    let mut remote = Remote::connect(endpoint)?;
+        .unwrap_or_else(|| paddock_sim::circuit::DEFAULT_MAP.into());
+    let mut remote = Remote::connect(endpoint, circuits)?;
     remote
         .status()
         .with_context(|| format!("no broker answering at {endpoint}"))?;

@@ -22,8 +22,9 @@ mod video;
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+use paddock_sim::circuit::Circuits;
 
 use crate::args::outln;
 
@@ -134,35 +135,41 @@ fn main() {
         .init();
     let matches = args::allow_negative_numbers(Cli::command()).get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
-    // folders of the user's own maps, looked up by name before the shipped ones
-    if let Some(v) = std::env::var_os("PADDOCK_MAPS") {
-        paddock_sim::shipped::add_map_dirs(
-            std::env::split_paths(&v).filter(|p| !p.as_os_str().is_empty()),
-        );
-    }
+    // the maps every command finds by name: folders of the user's own maps, looked up
+    // before the shipped ones; each map is loaded once for the whole run
+    let circuits = Circuits::with_dirs(
+        std::env::var_os("PADDOCK_MAPS")
+            .map(|v| {
+                std::env::split_paths(&v)
+                    .filter(|p| !p.as_os_str().is_empty())
+                    .collect::<Vec<_>>()
+            })
+            .unwrap_or_default(),
+    );
+    let circuits = &circuits;
     let result = client_security(&cli).and_then(|()| match cli.command {
         Command::Tune(args) => match &args.endpoint {
-            Some(endpoint) => jobs_cmd::tune_remote(&args, endpoint, args.detach),
-            None => tune_cmd::run(&args),
+            Some(endpoint) => jobs_cmd::tune_remote(&args, endpoint, args.detach, circuits),
+            None => tune_cmd::run(&args, circuits),
         },
-        Command::Perf(args) => perf::run(&args),
-        Command::Demo(args) => demo::run(&args),
-        Command::Rollout(args) => rollout_cmd::rollout(&args),
-        Command::Benchmark(args) => rollout_cmd::benchmark(&args),
+        Command::Perf(args) => perf::run(&args, circuits),
+        Command::Demo(args) => demo::run(&args, circuits),
+        Command::Rollout(args) => rollout_cmd::rollout(&args, circuits),
+        Command::Benchmark(args) => rollout_cmd::benchmark(&args, circuits),
         Command::Drivers { json, verbose } => list_drivers(json, verbose),
-        Command::Sysid(args) => sysid_cmd::run(&args),
-        Command::Bridge(args) => bridge_cmd::run(&args),
+        Command::Sysid(args) => sysid_cmd::run(&args, circuits),
+        Command::Bridge(args) => bridge_cmd::run(&args, circuits),
         Command::Broker(args) => serve_cmd::broker(&args),
-        Command::Worker(args) => serve_cmd::worker(&args),
-        Command::Serve(args) => serve_cmd::serve(&args),
-        Command::Status(args) => jobs_cmd::status(&args),
-        Command::Jobs(args) => jobs_cmd::jobs(&args),
-        Command::PerfCluster(args) => perf_cluster::run(&args),
+        Command::Worker(args) => serve_cmd::worker(&args, circuits),
+        Command::Serve(args) => serve_cmd::serve(&args, circuits),
+        Command::Status(args) => jobs_cmd::status(&args, circuits),
+        Command::Jobs(args) => jobs_cmd::jobs(&args, circuits),
+        Command::PerfCluster(args) => perf_cluster::run(&args, circuits),
         Command::Keys { command } => keys::run(&command),
         Command::Health(args) => keys::health(&args),
         Command::OnnxCheck(args) => onnx_cmd::run(&args),
         Command::Maps { command } => match command {
-            MapsCommand::List { dirs, json } => maps_list(&dirs, json),
+            MapsCommand::List { dirs, json } => maps_list(&dirs, json, circuits),
             MapsCommand::Generate(args) => maps_generate::run(&args),
         },
     });
@@ -176,15 +183,19 @@ fn main() {
     }
 }
 
-fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
-    use paddock_sim::shipped::{map_dirs, shipped_map_dir, shipped_maps};
-    use paddock_sim::track::{Circuit, DEFAULT_MAP, list_circuit_dirs};
-    let row = |source: &str, dir: &std::path::Path, path: String| match Circuit::load(dir) {
+fn maps_list(extra: &[PathBuf], json: bool, circuits: &Circuits) -> Result<()> {
+    use paddock_sim::circuit::{Circuit, DEFAULT_MAP, list_circuit_dirs};
+    use paddock_sim::shipped::shipped_maps;
+    use paddock_sim::track::TrackError;
+    let row = |source: &str,
+               label: &str,
+               path: String,
+               loaded: Result<std::sync::Arc<Circuit>, TrackError>| match loaded {
         Ok(c) => serde_json::json!({
             "name": c.name,
             "source": source,
             "path": path,
-            "hash": paddock_proto::read_map_dir(dir, &c.name).map(|b| b.hash).unwrap_or_default(),
+            "hash": paddock_wire::circuit_bundle(&c, &c.name).map(|b| b.hash).unwrap_or_default(),
             "length_m": c.track.length(),
             "raceline": c.track.raceline().is_some(),
             "resolution": c.map.resolution(),
@@ -192,7 +203,7 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
             "default": source == "shipped" && c.name.eq_ignore_ascii_case(DEFAULT_MAP),
         }),
         Err(e) => serde_json::json!({
-            "name": dir.file_name().map(|n| n.to_string_lossy().to_string()),
+            "name": label,
             "source": source,
             "path": path,
             "error": e.to_string(),
@@ -201,11 +212,14 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
     let mut rows = Vec::new();
     // shipped maps are compiled into this binary
     for m in shipped_maps() {
-        let dir = shipped_map_dir(m).with_context(|| format!("shipped map {}", m.name))?;
-        rows.push(row("shipped", &dir, "(built in)".to_string()));
+        rows.push(row(
+            "shipped",
+            m.name,
+            "(built in)".to_string(),
+            circuits.shipped(m),
+        ));
     }
-    let added = map_dirs();
-    for (source, dirs) in [("PADDOCK_MAPS", added.as_slice()), ("given", extra)] {
+    for (source, dirs) in [("PADDOCK_MAPS", circuits.dirs()), ("given", extra)] {
         for d in dirs {
             if !d.is_dir() {
                 anyhow::bail!("not a directory of maps: {}", d.display());
@@ -223,7 +237,13 @@ fn maps_list(extra: &[PathBuf], json: bool) -> Result<()> {
                 );
             }
             for dir in maps {
-                rows.push(row(source, &dir, dir.display().to_string()));
+                let label = dir.file_name().map(|n| n.to_string_lossy().to_string());
+                rows.push(row(
+                    source,
+                    label.as_deref().unwrap_or_default(),
+                    dir.display().to_string(),
+                    circuits.load(&dir),
+                ));
             }
         }
     }

@@ -14,10 +14,10 @@ use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::Args;
 use paddock_policy::{Driver, PurePursuit, PurePursuitParams};
+use paddock_sim::circuit::{Circuit, Circuits, DEFAULT_MAP};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
-use paddock_sim::track::{Circuit, DEFAULT_MAP};
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 use serde::Serialize;
 
@@ -124,9 +124,11 @@ fn drive(
     })
 }
 
-pub fn run(args: &PerfArgs) -> Result<()> {
+pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
     let name = args.map.as_deref().unwrap_or(DEFAULT_MAP);
-    let circuit = Circuit::resolve(name, &[]).with_context(|| format!("loading map {name:?}"))?;
+    let circuit = circuits
+        .get(name)
+        .with_context(|| format!("loading map {name:?}"))?;
     anyhow::ensure!(
         (1..=64).contains(&args.agents),
         "--agents {} is out of range (1..=64)",

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use paddock_rollout::{EpisodeTask, Executor, LocalExecutor, Scenario, task_seed};
+use paddock_sim::circuit::Circuits;
 
 use crate::args::{self, outln};
 use crate::remote::{Remote, RemoteExecutor};
@@ -91,7 +92,7 @@ fn timed(exec: &dyn Executor, tasks: &[EpisodeTask], repeats: usize) -> Result<(
     Ok((tasks.len() as f64 / best, digest))
 }
 
-pub fn run(args: &PerfClusterArgs) -> Result<()> {
+pub fn run(args: &PerfClusterArgs, circuits: &Circuits) -> Result<()> {
     if args.episodes == 0 {
         bail!("--episodes must be at least 1");
     }
@@ -115,10 +116,9 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
         .collect();
     let warmup = &tasks[..tasks.len().min(2 * threads)];
 
-    // keep the circuit loaded, as a worker does, so local episodes do not each rebuild
-    // its distance field and driving line
-    let _circuit = paddock_sim::track::Circuit::resolve(&args.map, &[])?;
-    let local = LocalExecutor::new(threads)?;
+    // the local pool loads the circuit once from the registry, as a worker does
+    circuits.get(&args.map)?;
+    let local = LocalExecutor::new(threads, circuits.clone())?;
     local.run_batch(warmup, &|_| {});
     let (local_rate, local_digest) = timed(&local, &tasks, args.repeats)?;
     eprintln!("local, {threads} threads: {local_rate:.1} rollouts/s");
@@ -129,9 +129,9 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
     let mut rates = Vec::new();
     for n in [1usize, 2] {
         let workers = Workers::spawn(n, &broker.back, threads, &maps)?;
-        let mut remote = Remote::connect(&broker.front)?;
+        let mut remote = Remote::connect(&broker.front, circuits)?;
         remote.wait_for_workers(n, Duration::from_secs(30))?;
-        let exec = RemoteExecutor::connect(&broker.front)?;
+        let exec = RemoteExecutor::connect(&broker.front, circuits)?;
         // the first batch moves the map to the broker and the workers
         exec.run_batch(warmup, &|_| {});
         let (rate, digest) = timed(&exec, &tasks, args.repeats)?;
@@ -191,7 +191,7 @@ pub fn run(args: &PerfClusterArgs) -> Result<()> {
 /// Waits until the broker has declared the killed workers dead (no worker left), so the
 /// next measurement does not wait on a dead worker's tasks.
 fn wait_gone(remote: &Remote) -> Result<()> {
-    let mut remote = Remote::connect(&remote.endpoint)?;
+    let mut remote = Remote::connect(&remote.endpoint, &remote.circuits)?;
     let deadline = Instant::now() + Duration::from_secs(10);
     while Instant::now() < deadline {
         if remote.status()?.workers.is_empty() {

@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
-use paddock_sim::track::Circuit;
+use paddock_sim::circuit::Circuit;
 
 static FONT: &[u8] = paddock_render::FONT_TTF;
 

@@ -18,6 +18,7 @@ use paddock_broker::client::{Client, ClientError, Received};
 use paddock_libzmq::Curve;
 use paddock_proto::{Body, ErrorCode, MapBundle};
 use paddock_rollout::{EpisodeResult, EpisodeTask, Executor, RolloutError};
+use paddock_sim::circuit::Circuits;
 use paddock_wire::{batch_to_proto, local_map, map_ref, outcome_from_bytes};
 
 /// How long a batch may go without any message from the broker before it is given up.
@@ -30,6 +31,8 @@ pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
 pub struct Remote {
     pub endpoint: String,
     client: Client,
+    /// Where map names are looked up (`PADDOCK_MAPS`, then the shipped maps).
+    pub circuits: Circuits,
     maps: HashMap<String, MapBundle>,
     stored: std::collections::HashSet<String>,
 }
@@ -48,12 +51,15 @@ pub fn security() -> Curve {
 }
 
 impl Remote {
-    pub fn connect(endpoint: &str) -> Result<Self> {
+    /// A connection to the broker at `endpoint`; maps named in requests are found in
+    /// `circuits`.
+    pub fn connect(endpoint: &str, circuits: &Circuits) -> Result<Self> {
         let client = Client::connect_with(endpoint, &security())
             .with_context(|| format!("connecting to the broker at {endpoint}"))?;
         Ok(Self {
             endpoint: endpoint.to_string(),
             client,
+            circuits: circuits.clone(),
             maps: HashMap::new(),
             stored: Default::default(),
         })
@@ -108,7 +114,8 @@ impl Remote {
         if let Some(b) = self.maps.get(map) {
             return Ok(b.clone());
         }
-        let b = local_map(map).map_err(|e| anyhow!("map {map:?}: {}", e.message))?;
+        let b =
+            local_map(&self.circuits, map).map_err(|e| anyhow!("map {map:?}: {}", e.message))?;
         self.maps.insert(map.to_string(), b.clone());
         Ok(b)
     }
@@ -252,9 +259,9 @@ pub struct RemoteExecutor {
 }
 
 impl RemoteExecutor {
-    pub fn connect(endpoint: &str) -> Result<Self> {
+    pub fn connect(endpoint: &str, circuits: &Circuits) -> Result<Self> {
         Ok(Self {
-            remote: Mutex::new(Remote::connect(endpoint)?),
+            remote: Mutex::new(Remote::connect(endpoint, circuits)?),
             endpoint: endpoint.to_string(),
         })
     }
@@ -297,12 +304,20 @@ impl Executor for RemoteExecutor {
 }
 
 /// The executor for `--endpoint`: the broker there (checked to answer), else a local
-/// pool of `threads` (0: one per core).
-pub fn executor(endpoint: Option<&str>, threads: usize) -> Result<Box<dyn Executor>> {
+/// pool of `threads` (0: one per core). Maps are named in `circuits` (the local pool
+/// loads each once from it; a broker gets their files from it).
+pub fn executor(
+    endpoint: Option<&str>,
+    threads: usize,
+    circuits: &Circuits,
+) -> Result<Box<dyn Executor>> {
     match endpoint {
-        None => Ok(Box::new(paddock_rollout::LocalExecutor::new(threads)?)),
+        None => Ok(Box::new(paddock_rollout::LocalExecutor::new(
+            threads,
+            circuits.clone(),
+        )?)),
         Some(url) => {
-            let exec = RemoteExecutor::connect(url)?;
+            let exec = RemoteExecutor::connect(url, circuits)?;
             {
                 let mut remote = exec.remote.lock().unwrap_or_else(|e| e.into_inner());
                 remote

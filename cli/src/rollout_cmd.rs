@@ -13,7 +13,7 @@ use paddock_rollout::benchmark::{BenchmarkReport, BenchmarkSpec, Task};
 use paddock_rollout::{
     AgentSpec, EpisodeResult, EpisodeTask, Executor, RolloutError, Scenario, task_seed,
 };
-use paddock_sim::track::DEFAULT_MAP;
+use paddock_sim::circuit::{Circuits, DEFAULT_MAP};
 
 use crate::video::VideoOptions;
 
@@ -138,11 +138,16 @@ pub struct RolloutArgs {
 /// errors), as the driver name a scenario carries: a model is read, checked and
 /// optimised once for this process and registered (`onnx:<sha256>`). With a broker
 /// (`endpoint`), the model is also stored in it, from where each worker fetches it once.
-pub fn resolve_driver(flag: &str, name: &str, endpoint: Option<&str>) -> Result<String> {
+pub fn resolve_driver(
+    flag: &str,
+    name: &str,
+    endpoint: Option<&str>,
+    circuits: &Circuits,
+) -> Result<String> {
     let spec = paddock_policy::DriverSpec::parse(name).with_context(|| format!("{flag} {name}"))?;
     let registered = spec.register().with_context(|| format!("{flag} {name}"))?;
     if let (Some(endpoint), paddock_policy::DriverSpec::Onnx(model)) = (endpoint, &spec) {
-        crate::remote::Remote::connect(endpoint)?
+        crate::remote::Remote::connect(endpoint, circuits)?
             .put_model(model)
             .with_context(|| format!("{flag} {name}"))?;
     }
@@ -151,9 +156,14 @@ pub fn resolve_driver(flag: &str, name: &str, endpoint: Option<&str>) -> Result<
 
 /// The start of a one-car scenario on the starting grid at arc length `s` (m): the
 /// pose `paddock bridge sil --start-s` starts its car at.
-fn grid_start(scenario: &Scenario, s: f64) -> Result<paddock_rollout::StartSpec> {
+fn grid_start(
+    scenario: &Scenario,
+    s: f64,
+    circuits: &Circuits,
+) -> Result<paddock_rollout::StartSpec> {
     use paddock_sim::world::{Starts, World, WorldConfig};
-    let circuit = paddock_sim::track::Circuit::resolve(&scenario.map, &[])
+    let circuit = circuits
+        .get(&scenario.map)
         .with_context(|| format!("loading map {:?}", scenario.map))?;
     let world = World::new(circuit, WorldConfig::default())?;
     let poses = world
@@ -162,8 +172,8 @@ fn grid_start(scenario: &Scenario, s: f64) -> Result<paddock_rollout::StartSpec>
     Ok(paddock_rollout::StartSpec::Poses(poses))
 }
 
-pub fn rollout(args: &RolloutArgs) -> Result<()> {
-    let driver = resolve_driver("--driver", &args.driver, args.endpoint.as_deref())?;
+pub fn rollout(args: &RolloutArgs, circuits: &Circuits) -> Result<()> {
+    let driver = resolve_driver("--driver", &args.driver, args.endpoint.as_deref(), circuits)?;
     let params = parse_params(&driver, args.params.as_deref())?;
     let mut scenario = Scenario::single(&driver)?;
     scenario.map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
@@ -173,7 +183,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
     scenario.time_limit = args.time_limit;
     scenario.obstacles.count = args.obstacles;
     if let Some(s) = args.start_s {
-        scenario.starts = grid_start(&scenario, s)?;
+        scenario.starts = grid_start(&scenario, s, circuits)?;
     }
     scenario.validate()?;
     let scenario = Arc::new(scenario);
@@ -196,7 +206,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
         crate::video::check_encoder(path)?;
         tasks[args.video_episode].record = Some(args.video_opts.decimation()?);
     }
-    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
+    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads, circuits)?;
     let results = run_tasks(exec.as_ref(), &tasks, "rollout");
     let mut episodes = Vec::with_capacity(results.len());
     for (k, r) in results.into_iter().enumerate() {
@@ -204,7 +214,7 @@ pub fn rollout(args: &RolloutArgs) -> Result<()> {
     }
     if let Some(path) = &args.video {
         let jobs = [(path.clone(), &*scenario, &episodes[args.video_episode])];
-        crate::video::write_episodes(&jobs, &args.video_opts)?;
+        crate::video::write_episodes(circuits, &jobs, &args.video_opts)?;
         eprintln!("wrote {}", path.display());
     }
     let laps: Vec<f64> = episodes
@@ -356,16 +366,16 @@ pub struct BenchmarkArgs {
     video_opts: VideoOptions,
 }
 
-pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
+pub fn benchmark(args: &BenchmarkArgs, circuits: &Circuits) -> Result<()> {
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
     let endpoint = args.endpoint.as_deref();
-    let name = resolve_driver("--driver", &args.driver, endpoint)?;
+    let name = resolve_driver("--driver", &args.driver, endpoint, circuits)?;
     let mut driver = AgentSpec::with_defaults(&name)?;
     driver.params = parse_params(&name, args.params.as_deref())?;
     driver.vehicle = vehicle.clone();
     let opponent = match (&args.opponent, args.task) {
         (Some(o), _) => {
-            let name = resolve_driver("--opponent", o, endpoint)?;
+            let name = resolve_driver("--opponent", o, endpoint, circuits)?;
             let mut a = AgentSpec::with_defaults(&name)?;
             a.params = parse_params(&name, args.opponent_params.as_deref())
                 .context("--opponent-params")?;
@@ -406,7 +416,7 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
         }
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads)?;
+    let exec = crate::remote::executor(args.endpoint.as_deref(), args.threads, circuits)?;
     let results = run_tasks(exec.as_ref(), &tasks, &format!("benchmark {}", args.task));
     if let Some(Err(e)) = results.iter().find(|r| r.is_err()) {
         bail!("an episode failed: {e}");
@@ -422,7 +432,7 @@ pub fn benchmark(args: &BenchmarkArgs) -> Result<()> {
                     .map(|e| (dir.join(video_name(k)), &*t.scenario, e))
             })
             .collect();
-        crate::video::write_episodes(&jobs, &args.video_opts)?;
+        crate::video::write_episodes(circuits, &jobs, &args.video_opts)?;
         eprintln!("wrote {} videos into {}", jobs.len(), dir.display());
     }
     let report = paddock_rollout::benchmark::report(&spec, &results);

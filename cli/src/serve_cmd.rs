@@ -10,6 +10,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use paddock_broker::{Broker, BrokerConfig, Security};
+use paddock_sim::circuit::Circuits;
 use paddock_worker::{WorkerConfig, WorkerThread};
 
 use crate::args::{self, outln};
@@ -197,8 +198,9 @@ pub fn broker(args: &BrokerArgs) -> Result<()> {
     Ok(())
 }
 
-pub fn worker(args: &WorkerArgs) -> Result<()> {
+pub fn worker(args: &WorkerArgs, circuits: &Circuits) -> Result<()> {
     let mut cfg = WorkerConfig::new(&args.connect);
+    cfg.circuits = circuits.clone();
     cfg.threads = args.threads;
     cfg.curve = crate::remote::security();
     cfg.health_file = args.health_file.clone();
@@ -218,7 +220,7 @@ pub fn worker(args: &WorkerArgs) -> Result<()> {
     Ok(())
 }
 
-pub fn serve(args: &ServeArgs) -> Result<()> {
+pub fn serve(args: &ServeArgs, circuits: &Circuits) -> Result<()> {
     if args.workers == 0 {
         bail!("--workers = 0: serve needs at least one worker");
     }
@@ -267,9 +269,11 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
         cfg.threads = threads;
         cfg.maps_dir = maps.clone();
         cfg.vehicle = vehicle.clone();
+        // one registry for the process: the workers load each map once between them
+        cfg.circuits = circuits.clone();
         workers.push(WorkerThread::spawn_in(cfg, ctx.clone()).context("starting a worker")?);
     }
-    let mut remote = Remote::connect(&front)?;
+    let mut remote = Remote::connect(&front, circuits)?;
     remote.wait_for_workers(args.workers, Duration::from_secs(30))?;
     // the one line a learner or script reads to find the broker
     outln!("{front}");

@@ -112,9 +112,9 @@ fn recording_files(path: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-pub fn run(args: &SysidArgs) -> Result<()> {
+pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Result<()> {
     if let Some(SysidCommand::Synth(s)) = &args.command {
-        return sysid_synth::run(s);
+        return sysid_synth::run(s, circuits);
     }
     let a = &args.analyse;
     let (false, Some(out)) = (a.recording.is_empty(), &a.out) else {

@@ -13,11 +13,11 @@ use crate::args::{self, outln};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use paddock_policy::{PurePursuit, PurePursuitParams};
+use paddock_sim::circuit::{Circuits, DEFAULT_MAP};
 use paddock_sim::dynamics::Vehicle;
 use paddock_sim::geometry::Pose;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::rng::Rng;
-use paddock_sim::track::{Circuit, DEFAULT_MAP};
 use paddock_sysid::effects::{EffectKind, parse_effect_spec};
 use paddock_sysid::recording::{McapTopics, Recording, wrap_pi};
 use serde_json::json;
@@ -95,7 +95,7 @@ impl Ou {
     }
 }
 
-pub fn run(args: &SynthArgs) -> Result<()> {
+pub fn run(args: &SynthArgs, circuits: &Circuits) -> Result<()> {
     let full_state = match args.channels.as_str() {
         "all" => true,
         "pose+speed" => false,
@@ -111,7 +111,9 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         );
     }
     let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
-    let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
+    let circuit = circuits
+        .get(&map)
+        .with_context(|| format!("loading map {map:?}"))?;
     let nominal = match &args.vehicle {
         Some(p) => VehicleParams::load(p)?,
         None => VehicleParams::default(),

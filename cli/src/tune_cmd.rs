@@ -17,7 +17,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use paddock_policy::driver_info;
 use paddock_rollout::tune_job::{Evaluation, Generation, TuneJob, TuneResult, TuneSpec};
 use paddock_rollout::{Executor, LocalExecutor, Scenario};
-use paddock_sim::track::{Circuit, DEFAULT_MAP};
+use paddock_sim::circuit::{Circuit, Circuits, DEFAULT_MAP};
 use plotters::style::RGBColor;
 
 use crate::args::{self, outln};
@@ -71,9 +71,11 @@ pub struct TuneArgs {
 }
 
 /// The job spec and base scenario of these arguments, with the loaded circuit.
-pub fn setup(args: &TuneArgs) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
+pub fn setup(args: &TuneArgs, circuits: &Circuits) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
     let map = args.map.clone().unwrap_or_else(|| DEFAULT_MAP.into());
-    let circuit = Circuit::resolve(&map, &[]).with_context(|| format!("loading map {map:?}"))?;
+    let circuit = circuits
+        .get(&map)
+        .with_context(|| format!("loading map {map:?}"))?;
     let info = driver_info(&args.driver)?;
     let spec = TuneSpec {
         driver: info.name.to_string(),
@@ -87,7 +89,8 @@ pub fn setup(args: &TuneArgs) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
     spec.validate()?;
     let mut base = Scenario::single(info.name)?;
     base.agents[0].vehicle = args::vehicle(args.vehicle.as_deref())?;
-    base.map = circuit.dir.display().to_string();
+    // the same registry answers this name with the same circuit for the whole run
+    base.map = map;
     base.laps = 1;
     base.time_limit = 60.0 + 0.5 * circuit.track.length();
     Ok((spec, base, circuit))
@@ -95,10 +98,10 @@ pub fn setup(args: &TuneArgs) -> Result<(TuneSpec, Scenario, Arc<Circuit>)> {
 
 /// A local tuning run (`paddock tune` without `--endpoint`; with it, `main` hands the
 /// job to the broker through [`crate::jobs_cmd::tune_remote`]).
-pub fn run(args: &TuneArgs) -> Result<()> {
-    let (spec, base, circuit) = setup(args)?;
+pub fn run(args: &TuneArgs, circuits: &Circuits) -> Result<()> {
+    let (spec, base, circuit) = setup(args, circuits)?;
     let mut job = TuneJob::new(spec, base, circuit.track.length())?;
-    let exec = LocalExecutor::new(args.threads)?;
+    let exec = LocalExecutor::new(args.threads, circuits.clone())?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let bar = ProgressBar::new(job.rounds_total() as u64);

@@ -22,6 +22,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use paddock_render::replay::Replay;
 use paddock_render::{Frame, Renderer};
 use paddock_rollout::{EpisodeResult, Scenario};
+use paddock_sim::circuit::Circuits;
 
 /// Physics steps per second (the simulator's 0.01 s timestep).
 const STEPS_PER_S: u32 = 100;
@@ -126,6 +127,7 @@ pub fn frames_bar(total: u64, what: &str) -> ProgressBar {
 /// Render `episode` (of `scenario`, recorded with [`VideoOptions::decimation`]) to
 /// `path`; `done` counts frames as they are written. Returns the number of frames.
 pub fn write_episode(
+    circuits: &Circuits,
     path: &Path,
     scenario: &Scenario,
     episode: &EpisodeResult,
@@ -133,7 +135,7 @@ pub fn write_episode(
     done: &AtomicU64,
 ) -> Result<usize> {
     let format = Format::of(path)?;
-    let replay = Replay::new(scenario, episode)?;
+    let replay = Replay::new(circuits, scenario, episode)?;
     let renderer = Renderer::new(replay.circuit(), opts.video_width)?;
     let (w, h) = (renderer.width(), renderer.height());
     let mut sink: Box<dyn FrameSink> = match format {
@@ -153,6 +155,7 @@ pub fn write_episode(
 
 /// Renders the given episodes into files in parallel, with one progress bar.
 pub fn write_episodes(
+    circuits: &Circuits,
     jobs: &[(PathBuf, &Scenario, &EpisodeResult)],
     opts: &VideoOptions,
 ) -> Result<()> {
@@ -174,7 +177,7 @@ pub fn write_episodes(
         let r = jobs
             .par_iter()
             .map(|(path, scenario, episode)| {
-                write_episode(path, scenario, episode, opts, &done).map(|_| ())
+                write_episode(circuits, path, scenario, episode, opts, &done).map(|_| ())
             })
             .collect::<Result<Vec<()>>>();
         stop.store(true, Ordering::Relaxed);

@@ -260,7 +260,7 @@ fn onnx_check_into_a_closed_pipe_ends_quietly() {
 #[test]
 fn bridge_drive_laps_the_sil_car_with_a_model_file_like_a_rollout() {
     use paddock_rollout::{AgentSpec, Scenario, StartSpec, run_episode};
-    use paddock_sim::track::Circuit;
+    use paddock_sim::circuit::Circuits;
     use paddock_sim::world::{Starts, World, WorldConfig};
     use std::process::Stdio;
 
@@ -271,7 +271,7 @@ fn bridge_drive_laps_the_sil_car_with_a_model_file_like_a_rollout() {
 
     // the rollout from the SIL's start: its grid at s = 0, LIDAR noise from seed 0
     let name = paddock_policy::onnx::register(&bytes, "centering.onnx").unwrap();
-    let circuit = Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = Circuits::new().get("lakeside").unwrap();
     let world = World::new(circuit, WorldConfig::default()).unwrap();
     let scenario = Scenario {
         map: "lakeside".into(),
@@ -281,7 +281,10 @@ fn bridge_drive_laps_the_sil_car_with_a_model_file_like_a_rollout() {
         time_limit: 120.0,
         ..Scenario::single(name).unwrap()
     };
-    let want = run_episode(&scenario, 0, None).unwrap().agents[0].lap_times[0];
+    let want = run_episode(&paddock_sim::circuit::Circuits::new(), &scenario, 0, None)
+        .unwrap()
+        .agents[0]
+        .lap_times[0];
 
     let exe = env!("CARGO_BIN_EXE_paddock");
     let domain = "69";

@@ -1,12 +1,12 @@
 //! Tune jobs: CMA-ES over a driver's parameters, the same [`TuneJob`] as `paddock tune`.
 
-use std::sync::Arc;
+use std::path::Path;
 
 use paddock_broker::plan::{JobOutput, JobPlan, Round, Stored};
 use paddock_proto::{Error, MapRef};
 use paddock_rollout::tune_job::{TuneJob, TuneSpec};
 use paddock_rollout::{RolloutError, Scenario};
-use paddock_sim::track::Circuit;
+use paddock_sim::circuit::Circuit;
 
 use crate::{check_map, episodes, invalid, or_default, rollout_err, round_of};
 
@@ -17,18 +17,20 @@ pub struct TunePlan {
     map: MapRef,
 }
 
-/// The base scenario of a tune job: what `paddock tune` builds from its arguments.
-fn tune_base(driver: &str, circuit: &Circuit) -> Result<Scenario, RolloutError> {
+/// The base scenario of a tune job on the map in folder `dir`: what `paddock tune`
+/// builds from its arguments.
+fn tune_base(driver: &str, dir: &Path, circuit: &Circuit) -> Result<Scenario, RolloutError> {
     let mut base =
         Scenario::single(driver).map_err(|source| RolloutError::Driver { agent: 0, source })?;
-    base.map = circuit.dir.display().to_string();
+    base.map = dir.display().to_string();
     base.laps = 1;
     base.time_limit = 60.0 + 0.5 * circuit.track.length();
     Ok(base)
 }
 
-fn load_circuit(dir: &std::path::Path, field: &str) -> Result<Arc<Circuit>, Error> {
-    Circuit::resolve(&dir.display().to_string(), &[]).map_err(|e| {
+/// The circuit of a stored map, loaded for this job alone (its track length).
+fn load_circuit(dir: &Path, field: &str) -> Result<Circuit, Error> {
+    Circuit::load(dir).map_err(|e| {
         invalid(
             field,
             format!("the stored map does not load as a circuit: {e}"),
@@ -59,7 +61,7 @@ impl TunePlan {
             crash_penalty: or_default(t.crash_penalty, 100.0),
         };
         let mut base =
-            tune_base(driver, &circuit).map_err(|e| rollout_err(&e, "job_submit.tune"))?;
+            tune_base(driver, &dir, &circuit).map_err(|e| rollout_err(&e, "job_submit.tune"))?;
         base.agents[0].vehicle = paddock_sim::params::VehicleParams::from_yaml_str(&t.vehicle_yaml)
             .map_err(|e| {
                 let field = match e.field() {

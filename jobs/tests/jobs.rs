@@ -32,7 +32,9 @@ fn tune_submit(map: &paddock_proto::MapRef) -> paddock_proto::JobSubmit {
 
 /// The same job run locally the way `paddock tune` sets it up.
 fn tune_locally() -> String {
-    let circuit = paddock_sim::track::Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = paddock_sim::circuit::Circuits::new()
+        .get("lakeside")
+        .unwrap();
     let spec = TuneSpec {
         driver: "pure-pursuit".into(),
         generations: 2,
@@ -43,11 +45,11 @@ fn tune_locally() -> String {
         crash_penalty: 100.0,
     };
     let mut base = Scenario::single("pure-pursuit").unwrap();
-    base.map = circuit.dir.display().to_string();
+    base.map = "lakeside".into();
     base.laps = 1;
     base.time_limit = 60.0 + 0.5 * circuit.track.length();
     let mut job = TuneJob::new(spec, base, circuit.track.length()).unwrap();
-    let exec = LocalExecutor::new(2).unwrap();
+    let exec = LocalExecutor::new(2, paddock_sim::circuit::Circuits::new()).unwrap();
     while let Some(tasks) = job.next_round().unwrap() {
         let r: Vec<EpisodeResult> = exec
             .run_batch(&tasks, &|_| {})
@@ -260,10 +262,9 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
     let (_, outcomes) = result(&c, 8, &rollouts);
     assert_eq!(outcomes, run_locally(&b));
 
-    let circuit = paddock_sim::track::Circuit::resolve("lakeside", &[]).unwrap();
     let spec = paddock_rollout::benchmark::BenchmarkSpec {
         task: paddock_rollout::benchmark::Task::B1,
-        map: circuit.dir.display().to_string(),
+        map: "lakeside".into(),
         driver: paddock_rollout::AgentSpec::with_defaults("pure-pursuit").unwrap(),
         opponent: None,
         episodes: 3,
@@ -272,7 +273,7 @@ fn rollout_and_benchmark_jobs_reduce_like_local_runs_and_jobs_cancel() {
         obstacles: 8,
         time_limit: 20.0,
     };
-    let results = LocalExecutor::new(1)
+    let results = LocalExecutor::new(1, paddock_sim::circuit::Circuits::new())
         .unwrap()
         .run_batch(&spec.tasks().unwrap(), &|_| {});
     let local =

@@ -4,8 +4,8 @@
 
 use std::collections::VecDeque;
 
+use paddock_sim::circuit::Circuits;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, AgentConfig, Starts, World, WorldConfig};
 
 #[path = "../tests/common/mod.rs"]
@@ -24,7 +24,7 @@ fn main() {
         .map(|(k, v)| (k.to_string(), v.parse().expect("number")))
         .collect();
     let o: Vec<(&str, f64)> = overrides.iter().map(|(k, v)| (k.as_str(), *v)).collect();
-    let c = Circuit::resolve(&args[1], &[]).expect("map");
+    let c = Circuits::new().get(&args[1]).expect("map");
     let mut d = common::driver(&args[0], &c, &o);
     // H2H=1: a pure-pursuit car at 0.6 of its profile starts 3 m ahead (as the tests'
     // head to head); OBSTACLES=N: N static boxes

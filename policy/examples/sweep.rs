@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::sync::Mutex;
 
-use paddock_sim::track::{Circuit, list_circuit_dirs};
+use paddock_sim::circuit::{Circuits, list_circuit_dirs};
 use paddock_sim::world::Starts;
 
 #[path = "../tests/common/mod.rs"]
@@ -52,7 +52,7 @@ fn main() {
                     let Some((map, seed)) = jobs.get(k) else {
                         break;
                     };
-                    let c = Circuit::resolve(map, &[]).expect("map");
+                    let c = Circuits::new().get(map).expect("map");
                     let o: Vec<(&str, f64)> =
                         overrides.iter().map(|(k, v)| (k.as_str(), *v)).collect();
                     let d = common::driver(&name, &c, &o);

@@ -36,11 +36,11 @@
 
 use std::sync::Arc;
 
+use paddock_sim::circuit::Circuit;
 use paddock_sim::collision::{obb_hits_map, obb_overlap};
 use paddock_sim::geometry::{Obb, Pose, wrap_angle};
 use paddock_sim::map::Map;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 
@@ -569,7 +569,9 @@ mod tests {
 
     #[test]
     fn quintic_meets_its_boundary_conditions() {
-        let c = Circuit::resolve("lakeside", &[]).expect("shipped map");
+        let c = paddock_sim::circuit::Circuits::new()
+            .get("lakeside")
+            .expect("shipped map");
         let l = Lattice::new(&c, LatticeParams::default());
         let start = Start {
             s0: 10.0,

@@ -25,8 +25,8 @@ pub mod tracker;
 
 use std::sync::Arc;
 
+use paddock_sim::circuit::Circuit;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 

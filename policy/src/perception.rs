@@ -129,7 +129,7 @@ impl Perception {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use paddock_sim::track::Circuit;
+    use paddock_sim::circuit::Circuits;
 
     /// Three cars on the driving line: the observer at s = 10 m, one 5 m behind it, one
     /// 10 m ahead that has crashed. A scan of five beams, of which 0, 2 and 4 are read:
@@ -137,7 +137,7 @@ mod tests {
     /// the car ahead.
     #[test]
     fn marks_cars_behind_and_keeps_only_static_returns() {
-        let circuit = Circuit::resolve("lakeside", &[]).expect("shipped map");
+        let circuit = Circuits::new().get("lakeside").expect("shipped map");
         let path = RefPath::from_circuit(&circuit);
         let place = |s: f64| path.to_world(s, 0.0);
         let cars = [place(10.0), place(5.0), place(20.0)];

@@ -10,9 +10,10 @@
 //! the path the speed command drops (divided by 1 + excess metres) and the lookahead grows by twice the distance, so a car that
 //! starts off the line joins it without overshooting. Needs no LIDAR.
 
+use paddock_sim::circuit::Circuit;
 use paddock_sim::geometry::Pose;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::{Circuit, Track};
+use paddock_sim::track::Track;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 

@@ -64,7 +64,7 @@ impl RefPath {
     /// The circuit's driving line (its raceline, or a line computed inside the map's
     /// free space where the raceline grazes walls; see `Circuit::driving_line`), with its
     /// speed profile.
-    pub fn from_circuit(circuit: &paddock_sim::track::Circuit) -> Self {
+    pub fn from_circuit(circuit: &paddock_sim::circuit::Circuit) -> Self {
         let line = circuit.driving_line();
         Self::new(
             line.iter().map(|p| p.x).collect(),

@@ -39,12 +39,12 @@
 
 use std::sync::Arc;
 
+use paddock_sim::circuit::Circuit;
 use paddock_sim::collision::{obb_hits_map, obb_overlap};
 use paddock_sim::geometry::{Obb, Pose};
 use paddock_sim::map::Map;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::rng::Rng;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Observation};
 use serde::{Deserialize, Serialize};
 

@@ -399,7 +399,9 @@ fn registered_models_have_names_the_registry_builds() {
     let info = driver_info(name).unwrap();
     assert_eq!(info.name, name);
     assert!(info.sensors.lidar && info.params.is_empty());
-    let circuit = paddock_sim::track::Circuit::resolve("lakeside", &[]).unwrap();
+    let circuit = paddock_sim::circuit::Circuits::new()
+        .get("lakeside")
+        .unwrap();
     let mut d = build_driver(name, &[], &circuit, &VehicleParams::default()).unwrap();
     assert_eq!(d.name(), name);
     assert_eq!(d.act(&obs_with_scan(&[1.0; 8]), 0), Action::new(0.0, 2.5));

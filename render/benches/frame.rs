@@ -10,12 +10,12 @@ use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use paddock_render::{Renderer, Scene};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, AgentConfig, Starts, World, WorldConfig};
 
 fn frame(c: &mut Criterion) {
-    let circuit = Circuit::resolve("lakeside", &[]).expect("the shipped map");
+    let circuit = Circuits::new().get("lakeside").expect("the shipped map");
     let agent = |scan| AgentConfig {
         params: VehicleParams::default(),
         scan,

@@ -4,7 +4,7 @@
 
 use paddock_render::{Renderer, Scene};
 use paddock_rollout::{AgentSpec, Scenario, episode_world};
-use paddock_sim::track::Circuit;
+use paddock_sim::circuit::Circuits;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -17,7 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .agents
         .push(AgentSpec::with_defaults("follow-the-gap")?);
     scenario.obstacles.count = 3;
-    let circuit = Circuit::resolve(map, &[])?;
+    let circuit = Circuits::new().get(map)?;
     let mut world = episode_world(&scenario, circuit.clone(), 3, &[true, true])?;
     let mut drivers = scenario
         .agents

@@ -15,8 +15,8 @@
 //! Frames are deterministic: the same scene gives the same bytes (f64 arithmetic in a
 //! fixed order, trigonometry from `libm`, the font compiled in).
 
+use paddock_sim::circuit::Circuit;
 use paddock_sim::geometry::{Obb, Pose};
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{AgentStatus, World};
 
 mod raster;

@@ -7,9 +7,9 @@
 use std::sync::Arc;
 
 use paddock_rollout::{EpisodeResult, Scenario, Termination, episode_world};
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::geometry::{Obb, Pose};
 use paddock_sim::lidar::Lidar;
-use paddock_sim::track::Circuit;
 
 use crate::{CarStatus, CarView, RenderError, ScanView, Scene, lidar_origin};
 
@@ -27,7 +27,11 @@ pub struct Replay<'a> {
 
 impl<'a> Replay<'a> {
     /// The replay of `episode`, an episode of `scenario` run with a trajectory recorded.
-    pub fn new(scenario: &'a Scenario, episode: &'a EpisodeResult) -> Result<Self, RenderError> {
+    pub fn new(
+        circuits: &Circuits,
+        scenario: &'a Scenario,
+        episode: &'a EpisodeResult,
+    ) -> Result<Self, RenderError> {
         let Some(tr) = &episode.trajectory else {
             return Err(RenderError::Invalid {
                 field: "trajectory".into(),
@@ -43,8 +47,9 @@ impl<'a> Replay<'a> {
                 reason: format!("the scenario has {n} cars"),
             });
         }
-        let circuit =
-            Circuit::resolve(&scenario.map, &[]).map_err(paddock_rollout::RolloutError::from)?;
+        let circuit = circuits
+            .get(&scenario.map)
+            .map_err(paddock_rollout::RolloutError::from)?;
         let world = episode_world(scenario, circuit.clone(), episode.seed, &[])?;
         let obstacles = world.obstacles()?.to_vec();
         let lap_ends = episode

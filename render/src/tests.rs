@@ -1,13 +1,14 @@
 use std::sync::Arc;
 
 use paddock_rollout::{Scenario, run_episode};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::world::{Action, AgentConfig, Starts, World, WorldConfig};
 
 use super::*;
 
 fn lakeside() -> Arc<Circuit> {
-    Circuit::resolve("lakeside", &[]).unwrap()
+    Circuits::new().get("lakeside").unwrap()
 }
 
 fn fnv(bytes: &[u8]) -> u64 {
@@ -162,8 +163,15 @@ fn a_recorded_episode_replays_scene_by_scene() {
         .push(paddock_rollout::AgentSpec::with_defaults("pure-pursuit").unwrap());
     scenario.obstacles.count = 3;
     scenario.time_limit = 3.0;
-    let episode = run_episode(&scenario, 11, Some(5)).unwrap();
-    let replay = replay::Replay::new(&scenario, &episode).unwrap();
+    let episode = run_episode(
+        &paddock_sim::circuit::Circuits::new(),
+        &scenario,
+        11,
+        Some(5),
+    )
+    .unwrap();
+    let replay =
+        replay::Replay::new(&paddock_sim::circuit::Circuits::new(), &scenario, &episode).unwrap();
     let tr = episode.trajectory.as_ref().unwrap();
     assert_eq!(replay.len(), tr.t.len());
     assert!(replay.len() >= 20, "{} samples", replay.len());
@@ -187,7 +195,13 @@ fn a_recorded_episode_replays_scene_by_scene() {
 
     let mut unrecorded = episode.clone();
     unrecorded.trajectory = None;
-    let e = replay::Replay::new(&scenario, &unrecorded).err().unwrap();
+    let e = replay::Replay::new(
+        &paddock_sim::circuit::Circuits::new(),
+        &scenario,
+        &unrecorded,
+    )
+    .err()
+    .unwrap();
     assert!(e.to_string().contains("trajectory"), "{e}");
 }
 

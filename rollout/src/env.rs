@@ -28,8 +28,8 @@
 use std::sync::Arc;
 
 use paddock_policy::{build_driver, check_lidar, driver_info};
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::geometry::Pose;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, World};
 use rayon::prelude::*;
 
@@ -131,10 +131,17 @@ impl std::fmt::Debug for VecEnv {
 }
 
 impl VecEnv {
-    /// Build the copies and reset each one from its own seed stream.
-    pub fn new(config: EnvConfig) -> Result<Self, RolloutError> {
+    /// Build the copies on the circuit `config.map` names in `circuits` and reset each
+    /// one from its own seed stream.
+    pub fn new(circuits: &Circuits, config: EnvConfig) -> Result<Self, RolloutError> {
         config.validate()?;
-        let circuit = Circuit::resolve(&config.map, &[])?;
+        let circuit = circuits.get(&config.map)?;
+        Self::with_circuit(config, circuit)
+    }
+
+    /// [`VecEnv::new`] on `circuit` (which `config.map` then only names).
+    pub fn with_circuit(config: EnvConfig, circuit: Arc<Circuit>) -> Result<Self, RolloutError> {
+        config.validate()?;
         let learners = config.learners;
         let mut scans = Vec::with_capacity(config.opponents.len());
         for (k, o) in config.opponents.iter().enumerate() {

@@ -3,7 +3,7 @@
 use std::sync::Arc;
 
 use paddock_policy::{build_driver, check_lidar};
-use paddock_sim::track::Circuit;
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::world::{Action, AgentConfig, AgentStatus, Starts, World, WorldConfig};
 use serde::{Deserialize, Serialize};
 
@@ -109,14 +109,16 @@ pub fn episode_world(
 }
 
 /// Run one episode of `scenario` with `seed`; record the trajectory every `record`
-/// steps if given.
+/// steps if given. The scenario's map is looked up in `circuits`, which loads it once
+/// for every episode run with the same registry.
 pub fn run_episode(
+    circuits: &Circuits,
     scenario: &Scenario,
     seed: u64,
     record: Option<u32>,
 ) -> Result<EpisodeResult, RolloutError> {
     scenario.validate()?;
-    let circuit = Circuit::resolve(&scenario.map, &[])?;
+    let circuit = circuits.get(&scenario.map)?;
     let mut drivers = Vec::with_capacity(scenario.agents.len());
     for (i, a) in scenario.agents.iter().enumerate() {
         let d = check_lidar(&a.driver, &scenario.lidar)

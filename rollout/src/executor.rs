@@ -3,6 +3,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use paddock_sim::circuit::Circuits;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -30,14 +31,16 @@ pub trait Executor: Sync {
     fn parallelism(&self) -> usize;
 }
 
-/// Runs episodes on the cores of this process (a rayon pool).
+/// Runs episodes on the cores of this process (a rayon pool), on the circuits of one
+/// registry: each map is loaded once for all its batches.
 pub struct LocalExecutor {
     pool: rayon::ThreadPool,
+    circuits: Circuits,
 }
 
 impl LocalExecutor {
-    /// `threads` = 0: one per core.
-    pub fn new(threads: usize) -> Result<Self, RolloutError> {
+    /// `threads` = 0: one per core. Scenarios name their maps in `circuits`.
+    pub fn new(threads: usize, circuits: Circuits) -> Result<Self, RolloutError> {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("paddock-rollout-{i}"))
@@ -47,7 +50,7 @@ impl LocalExecutor {
                 value: threads.to_string(),
                 reason: e.to_string(),
             })?;
-        Ok(Self { pool })
+        Ok(Self { pool, circuits })
     }
 }
 
@@ -63,7 +66,7 @@ impl Executor for LocalExecutor {
                 .par_iter()
                 .with_max_len(1)
                 .map(|t| {
-                    let r = run_episode(&t.scenario, t.seed, t.record);
+                    let r = run_episode(&self.circuits, &t.scenario, t.seed, t.record);
                     progress(done.fetch_add(1, Ordering::Relaxed) + 1);
                     r
                 })

@@ -1,10 +1,10 @@
 //! What an episode is: map, cars and drivers, starts, obstacles, end condition.
 
+use paddock_sim::circuit::DEFAULT_MAP;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::DEFAULT_MAP;
 use paddock_sim::world::ObstacleConfig;
 use serde::{Deserialize, Serialize};
 

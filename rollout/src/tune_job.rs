@@ -582,7 +582,7 @@ mod tests {
 
     #[test]
     fn a_job_resumed_from_its_serialised_state_ends_the_same() {
-        let exec = LocalExecutor::new(0).unwrap();
+        let exec = LocalExecutor::new(0, paddock_sim::circuit::Circuits::new()).unwrap();
         let mut whole = small_job();
         run_to_end(&mut whole, &exec, None);
         assert!(whole.is_done());

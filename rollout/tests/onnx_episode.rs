@@ -19,8 +19,8 @@ fn a_linear_model_drives_a_deterministic_episode() {
     let name = onnx::register(&model, "centering.onnx").unwrap();
     let s = scenario(name);
     assert_eq!(s.agents[0].driver, name);
-    let a = run_episode(&s, 7, Some(50)).unwrap();
-    let b = run_episode(&s, 7, Some(50)).unwrap();
+    let a = run_episode(&paddock_sim::circuit::Circuits::new(), &s, 7, Some(50)).unwrap();
+    let b = run_episode(&paddock_sim::circuit::Circuits::new(), &s, 7, Some(50)).unwrap();
     assert_eq!(a, b);
     let car = &a.agents[0];
     assert!(car.progress > 10.0, "{car:?}");
@@ -37,7 +37,13 @@ fn a_scan_of_the_wrong_size_is_refused_before_the_episode() {
         "m64.onnx",
     )
     .unwrap();
-    let e = run_episode(&scenario(name), 1, None).unwrap_err();
+    let e = run_episode(
+        &paddock_sim::circuit::Circuits::new(),
+        &scenario(name),
+        1,
+        None,
+    )
+    .unwrap_err();
     assert!(matches!(e, RolloutError::Driver { agent: 0, .. }), "{e}");
     assert!(
         e.to_string()
@@ -52,7 +58,7 @@ fn a_nan_action_ends_the_episode_as_a_crash() {
     let mut s = scenario(name);
     s.agents
         .push(paddock_rollout::AgentSpec::with_defaults("pure-pursuit").unwrap());
-    let r = run_episode(&s, 3, None).unwrap();
+    let r = run_episode(&paddock_sim::circuit::Circuits::new(), &s, 3, None).unwrap();
     let nan = &r.agents[0];
     assert_eq!(nan.termination, Termination::Crashed);
     assert_eq!(nan.end_time, Some(0.0));
@@ -60,7 +66,13 @@ fn a_nan_action_ends_the_episode_as_a_crash() {
     // the other car races on
     assert!(r.agents[1].progress > 10.0, "{:?}", r.agents[1]);
     // alone, the episode ends at once
-    let alone = run_episode(&scenario(name), 3, None).unwrap();
+    let alone = run_episode(
+        &paddock_sim::circuit::Circuits::new(),
+        &scenario(name),
+        3,
+        None,
+    )
+    .unwrap();
     assert_eq!(alone.steps, 1, "the stop action of the faulting step");
     assert_eq!(alone.agents[0].termination, Termination::Crashed);
 }

@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 
 use paddock_rollout::{Scenario, Termination, run_episode, task_seed};
-use paddock_sim::track::{Circuit, list_circuit_dirs};
+use paddock_sim::circuit::{Circuits, list_circuit_dirs};
 use rayon::prelude::*;
 
 /// The shipped maps, by name.
@@ -54,12 +54,18 @@ fn lap_failures(driver: &str) -> Vec<String> {
         .par_iter()
         .enumerate()
         .filter_map(|(k, map)| {
-            let circuit = Circuit::resolve(map, &[]).expect("track loads");
+            let circuit = Circuits::new().get(map).expect("track loads");
             let mut s = Scenario::single(driver).expect("registered");
             s.map = map.clone();
             // generous for a slow car: 1.2 m/s average over the lap, plus a start
             s.time_limit = 20.0 + circuit.track.length() / 1.2;
-            let e = run_episode(&s, task_seed(7, k as u64), None).expect("episode runs");
+            let e = run_episode(
+                &paddock_sim::circuit::Circuits::new(),
+                &s,
+                task_seed(7, k as u64),
+                None,
+            )
+            .expect("episode runs");
             let a = &e.agents[0];
             (a.termination != Termination::Finished).then(|| {
                 format!(

@@ -14,9 +14,9 @@ use paddock_policy::{Driver, build_driver};
 use paddock_rollout::benchmark::{BenchmarkSpec, Task};
 use paddock_rollout::env::{EnvConfig, VecEnv};
 use paddock_rollout::{AgentSpec, Executor, LocalExecutor};
+use paddock_sim::circuit::{Circuit, DEFAULT_MAP};
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::{Circuit, DEFAULT_MAP};
 use paddock_sim::world::{AgentStatus, Starts};
 
 const LAPS: u32 = 1;
@@ -40,7 +40,7 @@ fn self_play_race(model: &str, seed: u64, swapped: bool) -> (Vec<(Vec<f64>, f64,
     config.vehicle = vehicle();
     config.laps = LAPS;
     config.time_limit = TIME_LIMIT;
-    let mut env = VecEnv::new(config).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), config).unwrap();
     let mut poses = env
         .world(0)
         .unwrap()
@@ -105,7 +105,9 @@ fn two_learner_cars_race_b3_head_to_head_as_the_benchmark_does() {
         time_limit: TIME_LIMIT,
     };
     let tasks = spec.tasks().unwrap();
-    let results = LocalExecutor::new(1).unwrap().run_batch(&tasks, &|_| {});
+    let results = LocalExecutor::new(1, paddock_sim::circuit::Circuits::new())
+        .unwrap()
+        .run_batch(&tasks, &|_| {});
     let mut finished = 0;
     for (k, (task, result)) in tasks.iter().zip(results).enumerate() {
         let episode = result.unwrap();

@@ -26,10 +26,10 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath};
 use paddock_sim::map::Map;
-use paddock_sim::track::Circuit;
 
 const RES: f64 = 0.05;
 const SIZE: usize = 1040;
@@ -113,7 +113,9 @@ fn shipped_poses(circuit: &Circuit, n: usize) -> Vec<Pose> {
 fn bench_scan(c: &mut Criterion) {
     let ring = ring_map();
     let _ = ring.distance_field();
-    let circuit = Circuit::default_circuit().expect("the default map ships with the project");
+    let circuit = Circuits::new()
+        .default_circuit()
+        .expect("the default map ships with the project");
     let maps: [(String, &Map, Vec<Pose>); 2] = [
         ("lidar_ring_0.05m".to_string(), &ring, centre_poses(97)),
         (

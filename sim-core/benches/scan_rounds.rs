@@ -15,11 +15,12 @@
 use std::hint::black_box;
 use std::time::Instant;
 
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
 use paddock_sim::map::Map;
-use paddock_sim::track::{Circuit, Track};
+use paddock_sim::track::Track;
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 
 /// Nanoseconds of CPU time this thread has run, if the OS says.
@@ -130,7 +131,9 @@ fn main() {
         .into_iter()
         .filter(|p| p.supported())
         .collect();
-    let circuit = Circuit::default_circuit().expect("the default map ships with the project");
+    let circuit = Circuits::new()
+        .default_circuit()
+        .expect("the default map ships with the project");
     let spa = std::env::var_os("PADDOCK_SHARED")
         .map(|d| std::path::PathBuf::from(d).join("maps").join("Spa"))
         .filter(|d| d.is_dir())

@@ -5,14 +5,16 @@
 //! has (`world_step/1car_scan/avx` is what CPUs without AVX-512 run).
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use paddock_sim::circuit::Circuits;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::lidar::ScanPath;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 use std::hint::black_box;
 
 fn world(agents: usize, scan: bool) -> World {
-    let circuit = Circuit::default_circuit().expect("the default map ships with the project");
+    let circuit = Circuits::new()
+        .default_circuit()
+        .expect("the default map ships with the project");
     let mut cfg = WorldConfig::with_agents(agents);
     cfg.collision_mode = CollisionMode::Ignore;
     for a in &mut cfg.agents {

@@ -7,16 +7,19 @@
 //!
 //! ## Design
 //! - **Pure and deterministic.** All state is in plain values passed to `step`; there is no
-//!   global mutable state (the map cache only shares immutable maps; the folders of a
-//!   user's maps are added once at start-up, [`shipped::add_map_dirs`]). f64 state, a fixed
-//!   timestep, one seeded PRNG per world ([`rng::Rng`]), and transcendental functions from
-//!   the `libm` crate, so the same seed and actions give the same bits on every host.
-//! - **No I/O** beyond loading maps, tracks and vehicle parameter files (a shipped map,
-//!   compiled in, is written once to the temporary directory and loaded from there).
+//!   global state. Maps are values too: a program creates a [`circuit::Circuits`]
+//!   registry (the folders of its user's maps plus the maps shipped inside the library),
+//!   which loads each circuit once, and passes it to whatever needs maps. f64 state, a
+//!   fixed timestep, one seeded PRNG per world ([`rng::Rng`]), and transcendental
+//!   functions from the `libm` crate, so the same seed and actions give the same bits on
+//!   every host.
+//! - **No I/O** beyond loading the maps, tracks and vehicle parameter files it is asked
+//!   to load (shipped maps load from the bytes compiled in); no environment variables.
 //! - **Fast.** The LIDAR and the dynamics are built for millions of steps per second.
 //!
 //! Start with [`prelude`].
 
+pub mod circuit;
 pub mod collision;
 pub mod dynamics;
 pub mod geometry;

@@ -6,7 +6,8 @@ mod common;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use paddock_sim::track::{Circuit, TrackError, list_circuit_dirs};
+use paddock_sim::circuit::{Circuit, CircuitSource, Circuits, list_circuit_dirs};
+use paddock_sim::track::TrackError;
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 
 fn exercise(circuit: &Arc<Circuit>) {
@@ -41,12 +42,12 @@ fn every_shipped_map_runs() {
     let dirs = list_circuit_dirs(&dir);
     assert!(dirs.len() >= 3, "shipped maps: {dirs:?}");
     for d in dirs {
-        let c = Circuit::load(&d).unwrap();
+        let c = Arc::new(Circuit::load(&d).unwrap());
         assert!(c.track.raceline().is_some(), "{} has a raceline", c.name);
         exercise(&c);
     }
-    let default = Circuit::default_circuit().unwrap();
-    assert_eq!(default.name, paddock_sim::track::DEFAULT_MAP);
+    let default = Circuits::new().default_circuit().unwrap();
+    assert_eq!(default.name, paddock_sim::circuit::DEFAULT_MAP);
 }
 
 #[test]
@@ -57,7 +58,7 @@ fn every_real_track_runs() {
     let dirs = list_circuit_dirs(&maps);
     assert!(dirs.len() >= 20, "{dirs:?}");
     for d in dirs {
-        let c = Circuit::load(&d).unwrap_or_else(|e| panic!("{}: {e}", d.display()));
+        let c = Arc::new(Circuit::load(&d).unwrap_or_else(|e| panic!("{}: {e}", d.display())));
         exercise(&c);
         // progress along the raceline's own direction agrees with the centerline's
         let Some(r) = c.track.raceline() else {
@@ -75,25 +76,86 @@ fn every_real_track_runs() {
 
 #[test]
 fn circuits_are_shared_and_found_by_name() {
-    let a = Circuit::resolve("lakeside", &[]).unwrap();
-    let b = Circuit::resolve("LAKESIDE", &[]).unwrap();
+    let circuits = Circuits::new();
+    let a = circuits.get("lakeside").unwrap();
+    let b = circuits.get("LAKESIDE").unwrap();
     assert!(Arc::ptr_eq(&a, &b));
+    assert_eq!(circuits.loaded(), 1);
+    // a clone shares what the registry loaded; another registry loads its own
+    assert!(Arc::ptr_eq(
+        &a,
+        &circuits.clone().by_name("lakeside").unwrap()
+    ));
+    let other = Circuits::new().get("lakeside").unwrap();
+    assert!(!Arc::ptr_eq(&a, &other));
     // by name, the map compiled into the library: the same map as the project's folder
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/lakeside");
     let c = Circuit::load(&dir).unwrap();
     assert_eq!(a.map.content_hash(), c.map.content_hash());
     assert_eq!(a.track.length().to_bits(), c.track.length().to_bits());
-    assert!(Arc::ptr_eq(&a, &Circuit::load(&a.dir).unwrap()));
-    let q = Circuit::resolve("quarry", &[]).unwrap();
+    assert_eq!(a.name, c.name);
+    // a folder loads once, by any spelling of its path or its map YAML's
+    let f1 = circuits.load(&dir).unwrap();
+    assert!(Arc::ptr_eq(&f1, &circuits.load(&dir.join(".")).unwrap()));
+    assert!(Arc::ptr_eq(
+        &f1,
+        &circuits
+            .get(&dir.join("lakeside_map.yaml").display().to_string())
+            .unwrap()
+    ));
+    assert_eq!(circuits.loaded(), 2);
+    let q = circuits.get("quarry").unwrap();
     assert!(!Arc::ptr_eq(&a.map, &q.map));
     assert_ne!(a.map.content_hash(), q.map.content_hash());
+    assert_eq!(circuits.loaded(), 3);
+}
+
+#[test]
+fn concurrent_lookups_load_a_circuit_once() {
+    let circuits = Circuits::new();
+    let got: Vec<Arc<Circuit>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..4)
+            .map(|_| s.spawn(|| circuits.get("harbour").unwrap()))
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert!(got.iter().all(|c| Arc::ptr_eq(c, &got[0])));
+    assert_eq!(circuits.loaded(), 1);
+}
+
+/// Folders given to a registry are searched by name before the shipped maps, in order.
+#[test]
+fn given_folders_come_before_the_shipped_maps() {
+    let tmp = std::env::temp_dir().join(format!("paddock-registry-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    // a folder called "lakeside" holding the harbour map's files
+    let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/harbour");
+    let mine = tmp.join("lakeside");
+    std::fs::create_dir_all(&mine).unwrap();
+    for e in std::fs::read_dir(&src).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, mine.join(p.file_name().unwrap())).unwrap();
+    }
+    let circuits = Circuits::with_dirs([tmp.clone()]);
+    assert_eq!(circuits.dirs(), std::slice::from_ref(&tmp));
+    let c = circuits.by_name("Lakeside").unwrap();
+    assert_eq!(c.name, "harbour");
+    assert_eq!(c.dir(), Some(mine.canonicalize().unwrap().as_path()));
+    let shipped = Circuits::new().by_name("lakeside").unwrap();
+    assert_eq!(shipped.name, "lakeside");
+    assert!(shipped.dir().is_none());
+    // a name is never opened as a path
+    let e = circuits.by_name(&src.display().to_string()).unwrap_err();
+    assert!(matches!(e, TrackError::UnknownMap { .. }), "{e}");
+    assert!(e.to_string().contains(&tmp.display().to_string()), "{e}");
+    std::fs::remove_dir_all(&tmp).unwrap();
 }
 
 /// A fresh clone's tests, sharing one cargo target directory with another checkout,
 /// linked that checkout's build of this library and found maps through its source path
 /// (`circuits_are_shared_and_found_by_name` failed). Shipped maps now come from the
-/// library itself: every map of the project's `maps/` resolves by name to a folder
-/// outside the source tree, holding the same files.
+/// library itself, loaded from its bytes: every map of the project's `maps/` resolves by
+/// name to a shipped map (no folder at all) holding the same files.
 #[test]
 fn shipped_maps_are_not_found_through_a_source_path() {
     let source = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -102,15 +164,16 @@ fn shipped_maps_are_not_found_through_a_source_path() {
         .unwrap();
     let dirs = list_circuit_dirs(&source.join("maps"));
     assert_eq!(dirs.len(), paddock_sim::shipped::shipped_maps().len());
+    let circuits = Circuits::new();
     for d in dirs {
         let name = d.file_name().unwrap().to_str().unwrap();
-        let c = Circuit::resolve(name, &[]).unwrap();
-        let found = c.dir.canonicalize().unwrap();
+        let c = circuits.get(name).unwrap();
         assert!(
-            !found.starts_with(&source),
-            "{name} found in {}",
-            found.display()
+            matches!(c.source, CircuitSource::Shipped(m) if m.name == name),
+            "{name} found in {:?}",
+            c.source
         );
+        assert!(c.dir().is_none());
         assert_eq!(
             c.map.content_hash(),
             Circuit::load(&d).unwrap().map.content_hash()
@@ -136,7 +199,7 @@ fn shipped_maps_are_not_found_through_a_source_path() {
 
 #[test]
 fn unknown_and_broken_maps_are_clear_errors() {
-    let e = Circuit::resolve("no-such-track", &[]).unwrap_err();
+    let e = Circuits::new().get("no-such-track").unwrap_err();
     assert!(matches!(e, TrackError::UnknownMap { .. }));
     assert!(e.to_string().contains("no-such-track"), "{e}");
     // a directory with a map but a garbled centerline

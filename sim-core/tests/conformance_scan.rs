@@ -17,7 +17,7 @@ const CASES: [&str; 4] = ["room_box", "diag_pillar", "open_field", "open_field_c
 
 struct Case {
     name: &'static str,
-    map: std::sync::Arc<Map>,
+    map: Map,
     poses: Vec<Pose>,
     reference: Vec<Vec<f64>>,
     exact: Vec<Vec<f64>>,

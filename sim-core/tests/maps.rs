@@ -1,10 +1,9 @@
-//! Map loading on the shipped race tracks, the map cache, error reporting, origin yaw,
+//! Map loading on the shipped race tracks, maps as values, error reporting, origin yaw,
 //! and a throughput measurement of the LIDAR on real tracks (ignored by default).
 
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig};
@@ -99,38 +98,37 @@ fn every_track_loads_and_its_centerline_is_free() {
 }
 
 #[test]
-fn same_file_gives_same_arc_and_maps_coexist() {
+fn maps_are_values_and_coexist() {
     let Some(shared) = shared_dir() else { return };
     let tracks = tracks(&shared);
     let (_, yaml_a, center_a) = &tracks[0];
     let (_, yaml_b, center_b) = &tracks[1];
     let a1 = Map::load(yaml_a).unwrap();
-    // A different spelling of the same path hits the cache too.
+    // a different spelling of the same path loads the same map (a new value)
     let dotted = yaml_a
         .parent()
         .unwrap()
         .join(".")
         .join(yaml_a.file_name().unwrap());
     let a2 = Map::load(&dotted).unwrap();
-    assert!(Arc::ptr_eq(&a1, &a2));
+    assert_eq!(a1.content_hash(), a2.content_hash());
     let b = Map::load(yaml_b).unwrap();
-    assert!(!Arc::ptr_eq(&a1, &b));
     assert_ne!(a1.content_hash(), b.content_hash());
-    // Each map still answers for itself after the other was loaded.
+    // each map still answers for itself after the other was loaded
     let pa = centerline(center_a);
     let pb = centerline(center_b);
     let free_a = pa.iter().filter(|&&(x, y)| !a1.occupied_at(x, y)).count();
     let free_b = pb.iter().filter(|&&(x, y)| !b.occupied_at(x, y)).count();
     assert!(free_a * 20 >= pa.len() * 19 && free_b * 20 >= pb.len() * 19);
-    // Concurrent loads from several threads share one map.
+    // loads on several threads at once give the same map
     let handles: Vec<_> = (0..4)
         .map(|_| {
             let y = yaml_b.clone();
-            std::thread::spawn(move || Map::load(&y).unwrap())
+            std::thread::spawn(move || Map::load(&y).unwrap().content_hash())
         })
         .collect();
     for h in handles {
-        assert!(Arc::ptr_eq(&h.join().unwrap(), &b));
+        assert_eq!(h.join().unwrap(), b.content_hash());
     }
 }
 

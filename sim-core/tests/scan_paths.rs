@@ -6,11 +6,12 @@ mod common;
 
 use std::path::PathBuf;
 
+use paddock_sim::circuit::Circuits;
 use paddock_sim::geometry::{Obb, Pose};
 use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath};
 use paddock_sim::map::Map;
 use paddock_sim::rng::Rng;
-use paddock_sim::track::{Circuit, Track};
+use paddock_sim::track::Track;
 
 /// (name, map yaml, centerline csv) of every track folder in shared/maps.
 fn shared_tracks() -> Vec<(String, PathBuf, PathBuf)> {
@@ -116,7 +117,9 @@ fn every_scan_path_gives_the_same_bits_on_real_tracks() {
 #[test]
 fn every_scan_path_gives_the_same_bits_on_shipped_maps() {
     for name in ["lakeside", "harbour", "quarry"] {
-        let circuit = Circuit::resolve(name, &[]).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let circuit = Circuits::new()
+            .get(name)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
         check_track(name, &circuit.map, &circuit.track, 7, 300);
     }
 }

@@ -3,10 +3,11 @@
 
 use std::sync::Arc;
 
+use paddock_sim::circuit::Circuit;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::{Pose, wrap_angle};
 use paddock_sim::map::Map;
-use paddock_sim::track::{CenterPoint, Circuit, Track};
+use paddock_sim::track::{CenterPoint, Track};
 use paddock_sim::world::{Action, AgentStatus, Starts, World, WorldConfig, WorldError, WorldState};
 
 const R: f64 = 10.0;
@@ -41,7 +42,6 @@ fn ring() -> Arc<Circuit> {
         .collect();
     Arc::new(Circuit::new(
         "ring",
-        std::env::temp_dir(),
         Arc::new(map),
         Arc::new(Track::new(pts, None).unwrap()),
     ))

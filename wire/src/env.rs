@@ -4,8 +4,6 @@
 //! [`EnvObservation`] message and the scans frame, which travels untouched from the
 //! worker to the learner.
 
-use std::path::Path;
-
 use paddock_proto::{
     EnvObservation, EnvOpen, EnvOpened, EnvReset, EnvStep, Error, ErrorCode, error, pack_f32,
     pack_f64, pack_u32, unpack_f64,
@@ -21,13 +19,14 @@ use crate::scenario::{
 };
 use crate::{invalid, u32_of};
 
-/// The env config of an open request whose map files lie in `map_dir`. Cars whose
+/// The env config of an open request on the map `map` (a map folder, or a name the
+/// worker's circuit registry knows). Cars whose
 /// request carries the default vehicle get `default_vehicle` when one is given (a
 /// worker started with `--vehicle`). Errors name the field as the client sent it
 /// (`opponents[1].params`, `lidar.fov`, ...).
 pub fn config_from_proto(
     o: &EnvOpen,
-    map_dir: &Path,
+    map: &str,
     default_vehicle: Option<&VehicleParams>,
 ) -> Result<EnvConfig, Error> {
     let vehicle = |yaml: &str, prefix: &str| -> Result<VehicleParams, Error> {
@@ -61,7 +60,7 @@ pub fn config_from_proto(
         },
     };
     Ok(EnvConfig {
-        map: map_dir.display().to_string(),
+        map: map.to_string(),
         num_envs: o.num_envs as usize,
         seed: o.seed,
         // 0 (a client that does not set it): one learner

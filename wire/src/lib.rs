@@ -25,7 +25,7 @@ pub mod scenario;
 #[cfg(test)]
 mod tests;
 
-pub use maps::{check_map_bundle, local_map, map_ref, shipped_bundles};
+pub use maps::{check_map_bundle, circuit_bundle, local_map, map_ref, shipped_bundles};
 pub use models::{ModelRefused, model_field, model_hash_of, register_model, unregistered_models};
 pub use results::{
     episode_result_from_proto, episode_result_to_proto, outcome_from_bytes, outcome_from_proto,

@@ -2,25 +2,70 @@
 //! what a received bundle's files say.
 
 use paddock_proto::{Error, ErrorCode, MapBundle, MapFile, MapRef, error};
+use paddock_sim::circuit::{Circuit, CircuitSource, Circuits};
+use paddock_sim::shipped::ShippedMap;
 
 /// The bundle of a map name or directory (as [`paddock_rollout::Scenario::map`] holds
-/// it): every file, the content hash and the name the client used.
-pub fn local_map(map: &str) -> Result<MapBundle, Error> {
-    let circuit = paddock_sim::track::Circuit::resolve(map, &[])
+/// it) as `circuits` finds it: every file, the content hash and the name the client
+/// used.
+pub fn local_map(circuits: &Circuits, map: &str) -> Result<MapBundle, Error> {
+    let circuit = circuits
+        .get(map)
         .map_err(|e| error(ErrorCode::NotFound, "map", format!("map {map:?}: {e}")))?;
-    let bundle = paddock_proto::read_map_dir(&circuit.dir, map).map_err(|e| {
-        error(
-            ErrorCode::Internal,
-            "map",
-            format!("reading map {map:?} from {}: {e}", circuit.dir.display()),
-        )
-    })?;
+    let bundle = circuit_bundle(&circuit, map)?;
     // what the broker and workers will check: refuse here, before sending
     check_map_bundle(&bundle).map_err(|mut e| {
-        e.message = format!("map {map:?} in {}: {}", circuit.dir.display(), e.message);
+        e.message = format!("map {map:?} ({}): {}", where_from(&circuit), e.message);
         e
     })?;
     Ok(bundle)
+}
+
+/// Where a circuit's files are, for messages.
+fn where_from(circuit: &Circuit) -> String {
+    match &circuit.source {
+        CircuitSource::Dir(d) => format!("in {}", d.display()),
+        CircuitSource::Shipped(m) => format!("shipped map {}", m.name),
+        CircuitSource::Memory => "built in memory".into(),
+    }
+}
+
+/// The bundle of a loaded circuit's files, named `name`: its folder's files, or the
+/// embedded files of a shipped map (no disk access).
+pub fn circuit_bundle(circuit: &Circuit, name: &str) -> Result<MapBundle, Error> {
+    match &circuit.source {
+        CircuitSource::Dir(dir) => paddock_proto::read_map_dir(dir, name).map_err(|e| {
+            error(
+                ErrorCode::Internal,
+                "map",
+                format!("reading map {name:?} from {}: {e}", dir.display()),
+            )
+        }),
+        CircuitSource::Shipped(m) => Ok(shipped_bundle(m, name)),
+        CircuitSource::Memory => Err(error(
+            ErrorCode::InvalidArgument,
+            "map",
+            format!(
+                "map {name:?} was built in memory: it has no files to send (save it to a folder)"
+            ),
+        )),
+    }
+}
+
+fn shipped_bundle(m: &ShippedMap, name: &str) -> MapBundle {
+    let files: Vec<MapFile> = m
+        .files
+        .iter()
+        .map(|(file, data)| MapFile {
+            name: file.to_string(),
+            data: data.to_vec(),
+        })
+        .collect();
+    MapBundle {
+        hash: paddock_proto::bundle_hash(&files),
+        name: name.to_string(),
+        files,
+    }
 }
 
 /// The bundles of the maps shipped inside the binary ([`paddock_sim::shipped`]), each
@@ -29,21 +74,7 @@ pub fn local_map(map: &str) -> Result<MapBundle, Error> {
 pub fn shipped_bundles() -> Vec<MapBundle> {
     paddock_sim::shipped::shipped_maps()
         .iter()
-        .map(|m| {
-            let files: Vec<MapFile> = m
-                .files
-                .iter()
-                .map(|(name, data)| MapFile {
-                    name: name.to_string(),
-                    data: data.to_vec(),
-                })
-                .collect();
-            MapBundle {
-                hash: paddock_proto::bundle_hash(&files),
-                name: m.name.to_string(),
-                files,
-            }
-        })
+        .map(|m| shipped_bundle(m, m.name))
         .collect()
 }
 
@@ -112,6 +143,7 @@ mod tests {
     fn shipped_bundles_are_the_project_map_folders() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps");
         let bundles = shipped_bundles();
+        let circuits = Circuits::new();
         assert!(bundles.len() >= 3);
         for b in &bundles {
             check_map_bundle(b).unwrap();
@@ -119,9 +151,12 @@ mod tests {
             assert_eq!(b.files, folder.files, "{}", b.name);
             assert_eq!(b.hash, folder.hash, "{}", b.name);
             // and a name resolves to the same bundle
-            assert_eq!(local_map(&b.name).unwrap().hash, b.hash);
+            assert_eq!(local_map(&circuits, &b.name).unwrap().hash, b.hash);
+            // and the project's folder given as a path
+            let dir = root.join(&b.name).display().to_string();
+            assert_eq!(local_map(&circuits, &dir).unwrap().hash, b.hash);
         }
-        assert!(local_map("no-such-map-anywhere").is_err());
+        assert!(local_map(&circuits, "no-such-map-anywhere").is_err());
     }
 
     fn map_bundle(yaml: &str, image: (&str, Vec<u8>)) -> MapBundle {

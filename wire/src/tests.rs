@@ -22,17 +22,18 @@ fn scenario() -> Scenario {
     s
 }
 
+/// The project's lakeside folder: the files of the shipped map.
 fn map_dir() -> std::path::PathBuf {
-    paddock_sim::track::Circuit::resolve("lakeside", &[])
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../maps/lakeside")
+        .canonicalize()
         .unwrap()
-        .dir
-        .clone()
 }
 
 #[test]
 fn scenario_round_trips_bit_for_bit() {
     let s = scenario();
-    let bundle = local_map(&s.map).unwrap();
+    let bundle = local_map(&paddock_sim::circuit::Circuits::new(), &s.map).unwrap();
     assert_eq!(bundle.name, "lakeside");
     paddock_proto::check_bundle(&bundle).unwrap();
     let wire = scenario_to_proto(&s, map_ref(&bundle));
@@ -58,7 +59,7 @@ fn scenario_round_trips_bit_for_bit() {
 #[test]
 fn bad_values_are_named() {
     let s = scenario();
-    let bundle = local_map(&s.map).unwrap();
+    let bundle = local_map(&paddock_sim::circuit::Circuits::new(), &s.map).unwrap();
     let good = scenario_to_proto(&s, map_ref(&bundle));
     let dir = map_dir();
     let check = |mutate: &dyn Fn(&mut paddock_proto::Scenario), field: &str| {
@@ -131,14 +132,14 @@ fn results_round_trip_bit_for_bit() {
     let mut s = scenario();
     s.agents.truncate(1);
     s.time_limit = 1.5;
-    let local = run_episode(&s, 7, Some(5)).unwrap();
+    let local = run_episode(&paddock_sim::circuit::Circuits::new(), &s, 7, Some(5)).unwrap();
     assert!(local.trajectory.as_ref().unwrap().t.len() > 10);
     let bytes = outcome_to_bytes(&Ok(local.clone()));
     assert_eq!(outcome_from_bytes(&bytes).unwrap(), local);
     assert!(outcome_from_bytes(&[0xff, 0xff]).is_err());
 
     // the same episode run from the wire scenario (map from its directory) is equal
-    let bundle = local_map(&s.map).unwrap();
+    let bundle = local_map(&paddock_sim::circuit::Circuits::new(), &s.map).unwrap();
     let bytes = prost::Message::encode_to_vec(&scenario_to_proto(&s, map_ref(&bundle)));
     let assign = paddock_proto::TaskAssign {
         task_id: 9,
@@ -148,11 +149,18 @@ fn results_round_trip_bit_for_bit() {
     };
     let scenario = Arc::new(scenario_from_bytes(&bytes, &map_dir()).unwrap());
     let task = task_from_assign(&assign, scenario);
-    let remote = run_episode(&task.scenario, task.seed, task.record).unwrap();
+    let remote = run_episode(
+        &paddock_sim::circuit::Circuits::new(),
+        &task.scenario,
+        task.seed,
+        task.record,
+    )
+    .unwrap();
     assert_eq!(remote, local);
 
     // errors travel with their field
     let err = run_episode(
+        &paddock_sim::circuit::Circuits::new(),
         &Scenario {
             laps: 0,
             ..s.clone()

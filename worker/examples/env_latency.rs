@@ -18,7 +18,7 @@ use paddock_proto::{
     Body, EnvOp, EnvOpen, EnvReply, EnvRequest, EnvReset, EnvStep, Lidar, MapRef, PutMap, decode,
     encode, pack_f32,
 };
-use paddock_sim::track::Circuit;
+use paddock_sim::circuit::Circuits;
 use prost::Message;
 
 /// Sends a request (and its payload frame) and waits for its reply: (body, payload).
@@ -96,11 +96,8 @@ fn main() -> Result<(), String> {
     sock.connect(&endpoint)
         .map_err(|e| format!("{endpoint}: {e}"))?;
     let mut id = 0u64;
-    let dir = Circuit::resolve("lakeside", &[])
-        .map_err(|e| e.to_string())?
-        .dir
-        .clone();
-    let bundle = paddock_proto::read_map_dir(&dir, "lakeside").map_err(|e| e.to_string())?;
+    let bundle =
+        paddock_wire::local_map(&Circuits::new(), "lakeside").map_err(|e| e.message.clone())?;
     let map = MapRef {
         name: bundle.name.clone(),
         hash: bundle.hash.clone(),

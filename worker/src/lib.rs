@@ -48,6 +48,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use paddock_libzmq::Curve;
+use paddock_sim::circuit::Circuits;
 use paddock_sim::params::VehicleParams;
 
 pub use serve::Worker;
@@ -103,6 +104,10 @@ pub struct WorkerConfig {
     /// as nothing): `paddock serve --vehicle`, so clients that name no vehicle drive the
     /// fitted car. Requests that carry a vehicle are unaffected.
     pub vehicle: VehicleParams,
+    /// The circuits the worker loads (each once, shared by its tasks and sessions): its
+    /// cached maps by folder, and local maps by name for sessions (`paddock serve` with
+    /// `PADDOCK_MAPS`).
+    pub circuits: Circuits,
 }
 
 /// The default [`WorkerConfig::spin`].
@@ -122,6 +127,7 @@ impl WorkerConfig {
             health_file: None,
             spin: DEFAULT_SPIN,
             vehicle: VehicleParams::default(),
+            circuits: Circuits::new(),
         }
     }
 }

@@ -136,11 +136,9 @@ mod tests {
     use super::*;
 
     fn bundle() -> MapBundle {
-        let dir = paddock_sim::track::Circuit::resolve("lakeside", &[])
-            .unwrap()
-            .dir
-            .clone();
-        paddock_proto::read_map_dir(&dir, "../odd name/lakeside").unwrap()
+        let circuits = paddock_sim::circuit::Circuits::new();
+        let lakeside = circuits.get("lakeside").unwrap();
+        paddock_wire::circuit_bundle(&lakeside, "../odd name/lakeside").unwrap()
     }
 
     #[test]
@@ -155,7 +153,7 @@ mod tests {
         assert_eq!(cache.get(&b.hash).unwrap(), dir);
         assert_eq!(cache.hashes(), vec![b.hash.clone()]);
         // the stored files load as the same circuit name
-        let c = paddock_sim::track::Circuit::load(&dir).unwrap();
+        let c = paddock_sim::circuit::Circuit::load(&dir).unwrap();
         assert_eq!(c.name, "lakeside");
         // storing again is a no-op
         assert_eq!(cache.store(&b).unwrap(), dir);

@@ -4,11 +4,12 @@
 //! Renderers (each holds its circuit's background at one width) are kept for the last
 //! [`MAX_RENDERERS`] (circuit, width) pairs used, shared by every session on them.
 
-use std::path::PathBuf;
+use std::sync::Arc;
 
 use paddock_proto::{EnvImage, EnvRender, Error, ErrorCode, error};
 use paddock_render::{DEFAULT_WIDTH, Renderer, Scene};
 use paddock_rollout::env::VecEnv;
+use paddock_sim::circuit::Circuit;
 
 /// Renderers kept (a background of 800 x 542 pixels is 1.3 MB).
 pub const MAX_RENDERERS: usize = 8;
@@ -18,7 +19,7 @@ pub const MAX_IMAGE_BYTES: usize = 32 << 20;
 /// The renderers last used, most recent last.
 #[derive(Debug, Default)]
 pub struct Renderers {
-    kept: Vec<(PathBuf, u32, Renderer)>,
+    kept: Vec<(Arc<Circuit>, u32, Renderer)>,
 }
 
 fn invalid(field: &str, message: String) -> Error {
@@ -27,11 +28,11 @@ fn invalid(field: &str, message: String) -> Error {
 
 impl Renderers {
     fn get(&mut self, env: &VecEnv, width: u32) -> Result<&Renderer, Error> {
-        let dir = env.circuit().dir.clone();
+        let circuit = env.circuit();
         let k = match self
             .kept
             .iter()
-            .position(|(d, w, _)| *d == dir && *w == width)
+            .position(|(c, w, _)| Arc::ptr_eq(c, circuit) && *w == width)
         {
             Some(k) => k,
             None => {
@@ -40,7 +41,7 @@ impl Renderers {
                 if self.kept.len() >= MAX_RENDERERS {
                     self.kept.remove(0);
                 }
-                self.kept.push((dir, width, r));
+                self.kept.push((circuit.clone(), width, r));
                 self.kept.len() - 1
             }
         };
@@ -118,7 +119,7 @@ impl Renderers {
 #[cfg(test)]
 mod tests {
     use paddock_proto::{EnvOp, EnvOpen, EnvStep, Lidar, MapRef};
-    use paddock_sim::track::Circuit;
+    use paddock_sim::circuit::Circuits;
     use prost::Message;
 
     use crate::sessions::Sessions;
@@ -126,9 +127,7 @@ mod tests {
     use super::*;
 
     fn lakeside() -> MapRef {
-        let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
-        let b = paddock_proto::read_map_dir(&dir, "lakeside").unwrap();
-        paddock_wire::map_ref(&b)
+        paddock_wire::map_ref(&paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap())
     }
 
     fn open(s: &mut Sessions, id: u64, num_envs: u32) {

@@ -93,6 +93,7 @@ impl Worker {
         })?;
         let mut sessions = Sessions::new();
         sessions.set_map_cache(cache.clone());
+        sessions.set_circuits(cfg.circuits.clone());
         sessions.set_default_vehicle(cfg.vehicle.clone());
         let endpoint = format!(
             "inproc://paddock-worker-results-{}-{seq}",
@@ -111,7 +112,13 @@ impl Worker {
             .map_or(0, |d| d.subsec_nanos());
         let worker_id = format!("{}-{}-{seq}-{nanos:08x}", hostname(), std::process::id());
         let stats: Arc<WorkerStats> = Arc::default();
-        let runner = Runner::new(pool, results_tx, stats.clone(), &cfg.vehicle);
+        let runner = Runner::new(
+            pool,
+            results_tx,
+            stats.clone(),
+            &cfg.vehicle,
+            cfg.circuits.clone(),
+        );
         Ok(Self {
             cfg,
             ctx,

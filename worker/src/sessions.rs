@@ -29,14 +29,15 @@
 use std::collections::HashMap;
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use paddock_proto::{
     EnvOp, EnvOpen, EnvRender, EnvReply, EnvReset, EnvStep, Error, ErrorCode, error,
 };
 use paddock_rollout::RolloutError;
 use paddock_rollout::env::VecEnv;
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_wire::with_prefix;
 use prost::Message;
 
@@ -51,11 +52,20 @@ pub const MAX_SESSIONS: usize = 256;
 pub struct Sessions {
     open: HashMap<u64, VecEnv>,
     maps: Option<MapCache>,
-    /// Map name -> (hash of its local files, directory), computed once per name.
-    local: HashMap<String, (String, PathBuf)>,
+    /// The circuits sessions run on: maps of the cache by folder, local maps by name.
+    circuits: Circuits,
+    /// Map name -> (hash of its local files, circuit), computed once per name.
+    local: HashMap<String, (String, Arc<Circuit>)>,
     renderers: Renderers,
     /// Replaces the default vehicle of every car (see `WorkerConfig::vehicle`).
     vehicle: Option<VehicleParams>,
+}
+
+/// Where the map of an open request is: a folder of the map cache, or a local map
+/// already loaded.
+enum MapAt {
+    Cached(PathBuf),
+    Local(Arc<Circuit>),
 }
 
 /// A reply: its header and payload frames.
@@ -87,6 +97,12 @@ impl Sessions {
     /// Look maps up by hash in `cache` (the worker's map cache).
     pub fn set_map_cache(&mut self, cache: MapCache) {
         self.maps = Some(cache);
+    }
+
+    /// Load circuits through `circuits` (the worker's registry, shared with its tasks):
+    /// local maps are looked up by name in it.
+    pub fn set_circuits(&mut self, circuits: Circuits) {
+        self.circuits = circuits;
     }
 
     /// Cars whose request carries the default vehicle get `vehicle` instead.
@@ -172,15 +188,26 @@ impl Sessions {
                 ),
             ));
         }
-        let dir = self
-            .map_dir(o.map.as_ref())
+        let at = self
+            .map_at(o.map.as_ref())
             .map_err(|e| with_prefix(e, "env_open"))?;
-        let config = paddock_wire::env::config_from_proto(o, &dir, self.vehicle.as_ref())
+        let name = match &at {
+            MapAt::Cached(dir) => dir.display().to_string(),
+            MapAt::Local(c) => c.name.clone(),
+        };
+        let config = paddock_wire::env::config_from_proto(o, &name, self.vehicle.as_ref())
             .map_err(|e| with_prefix(e, "env_open"))?;
         let learners = config.learners;
-        let env = guarded(|| VecEnv::new(config))
-            .and_then(|r| r.map_err(|e| paddock_wire::env::env_error(&e, learners)))
-            .map_err(|e| with_prefix(e, "env_open"))?;
+        let circuits = &self.circuits;
+        let env = guarded(|| {
+            let circuit = match at {
+                MapAt::Cached(dir) => circuits.load(&dir)?,
+                MapAt::Local(c) => c,
+            };
+            VecEnv::with_circuit(config, circuit)
+        })
+        .and_then(|r| r.map_err(|e| paddock_wire::env::env_error(&e, learners)))
+        .map_err(|e| with_prefix(e, "env_open"))?;
         let opened = paddock_wire::env::opened_to_proto(&env);
         self.open.insert(id, env);
         Ok(opened)
@@ -237,8 +264,8 @@ impl Sessions {
         }
     }
 
-    /// The directory of the map `m` names by hash (see the module docs).
-    fn map_dir(&mut self, m: Option<&paddock_proto::MapRef>) -> Result<PathBuf, Error> {
+    /// Where the map `m` names by hash is (see the module docs).
+    fn map_at(&mut self, m: Option<&paddock_proto::MapRef>) -> Result<MapAt, Error> {
         let Some(m) = m else {
             return Err(invalid("map", "map is missing: name the map by its hash"));
         };
@@ -274,12 +301,12 @@ impl Sessions {
         }
     }
 
-    /// The directory of a map with a well-formed hash: the cache's, else the local map
-    /// of that name when its files have that hash.
-    fn find_map(&mut self, m: &paddock_proto::MapRef) -> Option<PathBuf> {
+    /// Where a map with a well-formed hash is: the cache's folder, else the local map of
+    /// that name when its files have that hash.
+    fn find_map(&mut self, m: &paddock_proto::MapRef) -> Option<MapAt> {
         let hash = m.hash.to_ascii_lowercase();
         if let Some(dir) = self.maps.as_ref().and_then(|c| c.get(&hash)) {
-            return Some(dir);
+            return Some(MapAt::Cached(dir));
         }
         // a client's map name is looked up among the known map folders only, never
         // opened as a path (it could name any file or directory of the host)
@@ -287,13 +314,13 @@ impl Sessions {
             !m.name.is_empty() && !m.name.contains(['/', '\\', '\0']) && !m.name.starts_with('.');
         if bare
             && !self.local.contains_key(&m.name)
-            && let Ok(c) = Circuit::resolve(&m.name, &[])
-            && let Ok(b) = paddock_proto::read_map_dir(&c.dir, &m.name)
+            && let Ok(c) = self.circuits.by_name(&m.name)
+            && let Ok(b) = paddock_wire::circuit_bundle(&c, &m.name)
         {
-            self.local.insert(m.name.clone(), (b.hash, c.dir.clone()));
+            self.local.insert(m.name.clone(), (b.hash, c));
         }
         match self.local.get(&m.name) {
-            Some((h, dir)) if *h == hash => Some(dir.clone()),
+            Some((h, c)) if *h == hash => Some(MapAt::Local(c.clone())),
             _ => None,
         }
     }

@@ -11,14 +11,13 @@
 
 use std::collections::{HashMap, VecDeque};
 use std::panic::AssertUnwindSafe;
-use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 
 use paddock_proto::{Body, ErrorCode, TaskAssign, TaskOutcome, TaskResult, error};
 use paddock_rollout::Scenario;
+use paddock_sim::circuit::Circuits;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use prost::Message;
 
 use crate::WorkerStats;
@@ -62,9 +61,9 @@ impl Scenarios {
 pub struct Runner {
     pool: rayon::ThreadPool,
     results_tx: Arc<Mutex<zmq::Socket>>,
-    /// Circuits kept loaded, so later episodes on the same map share its distance field
-    /// and driving line instead of rebuilding them.
-    circuits: Arc<Mutex<HashMap<PathBuf, Arc<Circuit>>>>,
+    /// The worker's circuit registry: each map is loaded once and later episodes on it
+    /// share its distance field and driving line instead of rebuilding them.
+    circuits: Circuits,
     stats: Arc<WorkerStats>,
     /// Replaces the default vehicle of every car (see `WorkerConfig::vehicle`).
     vehicle: Option<Arc<VehicleParams>>,
@@ -76,11 +75,12 @@ impl Runner {
         results_tx: zmq::Socket,
         stats: Arc<WorkerStats>,
         vehicle: &VehicleParams,
+        circuits: Circuits,
     ) -> Self {
         Self {
             pool,
             results_tx: Arc::new(Mutex::new(results_tx)),
-            circuits: Arc::default(),
+            circuits,
             stats,
             vehicle: (*vehicle != VehicleParams::default()).then(|| Arc::new(vehicle.clone())),
         }
@@ -96,11 +96,10 @@ impl Runner {
         let task_id = t.task_id;
         self.pool.spawn(move || {
             let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                keep_circuit(&circuits, Path::new(&task.scenario.map));
                 if let Some(v) = &vehicle {
                     default_vehicle(&mut task.scenario, v);
                 }
-                paddock_rollout::run_episode(&task.scenario, task.seed, task.record)
+                paddock_rollout::run_episode(&circuits, &task.scenario, task.seed, task.record)
             }));
             let bytes = match outcome {
                 Ok(result) => {
@@ -151,20 +150,6 @@ fn default_vehicle(scenario: &mut Arc<Scenario>, vehicle: &VehicleParams) {
                 a.vehicle = vehicle.clone();
             }
         }
-    }
-}
-
-/// Loads a map directory's circuit once and keeps it alive.
-fn keep_circuit(circuits: &Mutex<HashMap<PathBuf, Arc<Circuit>>>, dir: &Path) {
-    let known = circuits
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .contains_key(dir);
-    if !known && let Ok(c) = Circuit::load(dir) {
-        circuits
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(dir.to_path_buf(), c);
     }
 }
 

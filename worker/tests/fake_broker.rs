@@ -160,7 +160,7 @@ fn runs_tasks_asks_for_scenarios_and_maps_once_and_refuses_bad_input() {
     assert_eq!(hello.worker_id, worker.worker_id);
 
     let s = scenario();
-    let bundle = local_map(&s.map).unwrap();
+    let bundle = local_map(&paddock_sim::circuit::Circuits::new(), &s.map).unwrap();
     let wire = scenario_to_proto(&s, map_ref(&bundle));
     let (bytes, hash) = blob(&wire);
     for task_id in [10, 11] {
@@ -186,7 +186,8 @@ fn runs_tasks_asks_for_scenarios_and_maps_once_and_refuses_bad_input() {
     for (task_id, outcome) in &results {
         let remote = outcome_from_bytes(&outcome.encode_to_vec()).unwrap();
         let record = (*task_id == 11).then_some(7);
-        let local = run_episode(&s, *task_id, record).unwrap();
+        let local =
+            run_episode(&paddock_sim::circuit::Circuits::new(), &s, *task_id, record).unwrap();
         assert_eq!(remote, local, "task {task_id}");
     }
 
@@ -308,7 +309,7 @@ fn runs_tasks_asks_for_scenarios_and_maps_once_and_refuses_bad_input() {
     let (_, outcome) = result(broker.recv());
     assert_eq!(
         outcome_from_bytes(&outcome.encode_to_vec()).unwrap(),
-        run_episode(&s, 20, None).unwrap()
+        run_episode(&paddock_sim::circuit::Circuits::new(), &s, 20, None).unwrap()
     );
     assert_eq!(
         worker
@@ -397,7 +398,7 @@ fn asks_again_for_a_scenario_it_asked_of_a_broker_that_restarted() {
     let worker = WorkerThread::spawn(cfg).unwrap();
     let (wid, _, hello, _) = broker.recv();
     assert!(matches!(hello, Body::WorkerHello(_)));
-    let b = local_map("lakeside").unwrap();
+    let b = local_map(&paddock_sim::circuit::Circuits::new(), "lakeside").unwrap();
     let wire = scenario_to_proto(&scenario(), map_ref(&b));
     let (bytes, hash) = blob(&wire);
     broker.send(&wid, 1, assign(1, &hash, 0));
@@ -491,7 +492,7 @@ fn env_opens_wait_for_a_map_the_worker_lacks_and_ask_for_it_once() {
 
     // the shipped map under a name that resolves to nothing on this machine: only the
     // broker can supply it
-    let mut bundle = local_map("lakeside").unwrap();
+    let mut bundle = local_map(&paddock_sim::circuit::Circuits::new(), "lakeside").unwrap();
     bundle.name = "uploaded-copy".into();
     let uploaded = map_ref(&bundle);
     let (s1, s2) = (0x5eed_0001, 0x5eed_0002);
@@ -522,7 +523,11 @@ fn env_opens_wait_for_a_map_the_worker_lacks_and_ask_for_it_once() {
     let here = local.handle(
         1,
         EnvOp::EnvOpen as i32,
-        &env_open(map_ref(&local_map("lakeside").unwrap()), 2).unwrap(),
+        &env_open(
+            map_ref(&local_map(&paddock_sim::circuit::Circuits::new(), "lakeside").unwrap()),
+            2,
+        )
+        .unwrap(),
     );
     assert!(here.header.error.is_none(), "the shipped map opens locally");
     let mut rid = 210;

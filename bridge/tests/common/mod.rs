@@ -18,7 +18,14 @@ impl SilThread {
     pub fn start(options: SilOptions, ros: &RosConfig) -> Self {
         let stop = Arc::new(AtomicBool::new(false));
         let (ros, flag) = (ros.clone(), stop.clone());
-        let handle = thread::spawn(move || run_sil(&options, &ros, &flag));
+        let handle = thread::spawn(move || {
+            run_sil(
+                &paddock_sim::circuit::Circuits::new(),
+                &options,
+                &ros,
+                &flag,
+            )
+        });
         Self { stop, handle }
     }
 

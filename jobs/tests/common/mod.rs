@@ -181,7 +181,7 @@ pub fn decode_outcome(frame: &[u8]) -> paddock_proto::TaskOutcome {
 
 /// The shipped default map as a bundle and its reference.
 pub fn lakeside() -> (paddock_proto::MapBundle, MapRef) {
-    let b = paddock_wire::local_map("lakeside").unwrap();
+    let b = paddock_wire::local_map(&paddock_sim::circuit::Circuits::new(), "lakeside").unwrap();
     let r = paddock_wire::map_ref(&b);
     (b, r)
 }
@@ -295,11 +295,12 @@ fn compute_thread(
     jobs: std::sync::mpsc::Receiver<(paddock_proto::TaskAssign, paddock_proto::Scenario, PathBuf)>,
     results: std::sync::mpsc::Sender<(u64, Vec<u8>)>,
 ) {
+    let circuits = paddock_sim::circuit::Circuits::new();
     for (t, wire, dir) in jobs {
         let scenario =
             paddock_wire::scenario_from_proto(&wire, &dir).expect("the broker checked the task");
         let task = paddock_wire::task_from_assign(&t, std::sync::Arc::new(scenario));
-        let r = paddock_rollout::run_episode(&task.scenario, task.seed, task.record);
+        let r = paddock_rollout::run_episode(&circuits, &task.scenario, task.seed, task.record);
         if results
             .send((t.task_id, paddock_wire::outcome_to_bytes(&r)))
             .is_err()
@@ -483,17 +484,17 @@ fn worker_loop(
 
 /// The outcomes of a batch run locally, in task order.
 pub fn run_locally(batch: &paddock_proto::RolloutBatch) -> Vec<paddock_proto::TaskOutcome> {
-    let dir = paddock_sim::track::Circuit::resolve("lakeside", &[])
-        .unwrap()
-        .dir
-        .clone();
+    // the shipped map by name: the same files as the batch's map
+    let dir = std::path::Path::new("lakeside");
+    let circuits = paddock_sim::circuit::Circuits::new();
     batch
         .tasks
         .iter()
         .map(|t| {
-            let sc = paddock_wire::scenario_from_bytes(&batch.scenarios[t.scenario as usize], &dir)
+            let sc = paddock_wire::scenario_from_bytes(&batch.scenarios[t.scenario as usize], dir)
                 .unwrap();
             let r = paddock_rollout::run_episode(
+                &circuits,
                 &sc,
                 t.seed,
                 paddock_wire::record_from_proto(t.record_decimation),

@@ -4,9 +4,9 @@
 use std::sync::Arc;
 
 use paddock_policy::{Driver, build_driver, driver_info, params_from_overrides};
+use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::geometry::Pose;
 use paddock_sim::params::VehicleParams;
-use paddock_sim::track::Circuit;
 use paddock_sim::world::{
     Action, AgentConfig, AgentStatus, ObstacleConfig, Starts, World, WorldConfig,
 };
@@ -14,7 +14,7 @@ use paddock_sim::world::{
 pub const MAPS: [&str; 3] = ["lakeside", "quarry", "harbour"];
 
 pub fn circuit(name: &str) -> Arc<Circuit> {
-    Circuit::resolve(name, &[]).expect("shipped map")
+    Circuits::new().get(name).expect("shipped map")
 }
 
 /// A driver by registry name with `overrides` on its defaults.

@@ -26,8 +26,8 @@ fn slow(n: usize) -> Vec<f32> {
 
 #[test]
 fn same_seed_same_bits() {
-    let mut a = VecEnv::new(cfg(3)).unwrap();
-    let mut b = VecEnv::new(cfg(3)).unwrap();
+    let mut a = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(3)).unwrap();
+    let mut b = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(3)).unwrap();
     assert_eq!(a.frame(), b.frame());
     for _ in 0..20 {
         let fa = a.step(&slow(3), &[]).unwrap().clone();
@@ -52,14 +52,14 @@ fn same_seed_same_bits() {
 #[test]
 fn copies_are_independent_of_batching() {
     // copy i of a 3-env session equals a 1-env session given the same seed and actions
-    let mut batch = VecEnv::new(cfg(3)).unwrap();
+    let mut batch = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(3)).unwrap();
     batch.reset(&[], &[11, 12, 13], None).unwrap();
     let acts = slow(3);
     for _ in 0..15 {
         batch.step(&acts, &[]).unwrap();
     }
     for i in 0..3 {
-        let mut one = VecEnv::new(cfg(1)).unwrap();
+        let mut one = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(1)).unwrap();
         one.reset(&[], &[11 + i as u64], None).unwrap();
         for _ in 0..15 {
             one.step(&acts[2 * i..2 * i + 2], &[]).unwrap();
@@ -85,7 +85,7 @@ fn progress_reward_sums_to_progress_and_frame_skip_advances_time() {
         lap: 0.0,
         time: 0.0,
     };
-    let mut env = VecEnv::new(c).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap();
     env.reset(&[], &[3], None).unwrap();
     let mut total = 0.0;
     for k in 1..=10 {
@@ -110,7 +110,7 @@ fn progress_reward_sums_to_progress_and_frame_skip_advances_time() {
         time: -2.0,
     };
     c.frame_skip = 3;
-    let mut env = VecEnv::new(c).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap();
     let r = env.step(&[0.0, 1.0], &[]).unwrap().rewards[0];
     assert!((r + 0.06).abs() < 1e-12, "reward {r}");
 }
@@ -120,7 +120,7 @@ fn time_limit_truncates() {
     let mut c = cfg(2);
     c.time_limit = 0.5;
     c.frame_skip = 5;
-    let mut env = VecEnv::new(c).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap();
     for k in 1..=10 {
         let f = env.step(&slow(2), &[]).unwrap();
         assert_eq!(f.truncated, vec![k == 10; 2], "step {k}");
@@ -141,7 +141,7 @@ fn time_limit_truncates() {
 
 #[test]
 fn a_crash_terminates_with_the_collision_penalty() {
-    let mut env = VecEnv::new(cfg(1)).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(1)).unwrap();
     let mut crashed = None;
     for k in 0..2000 {
         let f = env.step(&[0.4, 8.0], &[]).unwrap();
@@ -162,7 +162,7 @@ fn a_crash_terminates_with_the_collision_penalty() {
 fn opponents_drive_themselves() {
     let mut c = cfg(2);
     c.opponents = vec![AgentSpec::with_defaults("pure-pursuit").unwrap()];
-    let mut env = VecEnv::new(c).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap();
     assert_eq!(env.num_agents(), 2);
     let start = env.frame().states.clone();
     for _ in 0..100 {
@@ -180,7 +180,7 @@ fn opponents_drive_themselves() {
 
 #[test]
 fn reset_to_given_poses() {
-    let mut env = VecEnv::new(cfg(2)).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(2)).unwrap();
     let p0 = *env
         .world(0)
         .unwrap()
@@ -197,7 +197,7 @@ fn reset_to_given_poses() {
 
 #[test]
 fn bad_requests_name_the_field_and_change_nothing() {
-    let mut env = VecEnv::new(cfg(2)).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), cfg(2)).unwrap();
     env.step(&slow(2), &[]).unwrap();
     let before = env.frame().clone();
     let e = env.step(&[0.0; 3], &[]).unwrap_err();
@@ -234,7 +234,7 @@ fn bad_requests_name_the_field_and_change_nothing() {
     let check = |f: fn(&mut EnvConfig), field: &str| {
         let mut c = cfg(1);
         f(&mut c);
-        let e = VecEnv::new(c).unwrap_err();
+        let e = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap_err();
         assert!(e.to_string().contains(field), "{field}: {e}");
     };
     check(|c| c.num_envs = 0, "num_envs");
@@ -261,7 +261,11 @@ fn bad_requests_name_the_field_and_change_nothing() {
         },
         "opponents[0].params",
     );
-    let e = VecEnv::new(EnvConfig::single("no-such-map", 1, 0)).unwrap_err();
+    let e = VecEnv::new(
+        &paddock_sim::circuit::Circuits::new(),
+        EnvConfig::single("no-such-map", 1, 0),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("no-such-map"), "{e}");
 }
 
@@ -274,7 +278,7 @@ fn two_learners(n: usize) -> EnvConfig {
 
 #[test]
 fn every_learner_gets_its_own_scan_reward_and_flags() {
-    let mut env = VecEnv::new(two_learners(2)).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), two_learners(2)).unwrap();
     assert_eq!((env.num_agents(), env.num_learners()), (2, 2));
     let f = env.frame();
     assert_eq!(f.scans.len(), 2 * 2 * 108);
@@ -316,7 +320,7 @@ fn every_learner_gets_its_own_scan_reward_and_flags() {
 
 #[test]
 fn a_crashed_learner_is_out_and_the_others_race_on() {
-    let mut env = VecEnv::new(two_learners(1)).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), two_learners(1)).unwrap();
     env.reset(&[], &[5], None).unwrap();
     // learner 0 at full lock and speed into a wall; learner 1 gently on
     let mut crashed_at = None;
@@ -354,7 +358,7 @@ fn a_crashed_learner_is_out_and_the_others_race_on() {
 
 #[test]
 fn learner_requests_name_the_field() {
-    let mut env = VecEnv::new(two_learners(2)).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), two_learners(2)).unwrap();
     let e = env.step(&[0.0; 4], &[]).unwrap_err();
     assert!(
         e.to_string()
@@ -369,7 +373,7 @@ fn learner_requests_name_the_field() {
     let check = |f: fn(&mut EnvConfig), field: &str, says: &str| {
         let mut c = two_learners(1);
         f(&mut c);
-        let e = VecEnv::new(c).unwrap_err();
+        let e = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap_err();
         assert!(e.to_string().contains(field), "{field}: {e}");
         assert!(e.to_string().contains(says), "{says}: {e}");
     };
@@ -398,7 +402,7 @@ fn learner_requests_name_the_field() {
 fn opponents_follow_the_learners() {
     let mut c = two_learners(1);
     c.opponents = vec![AgentSpec::with_defaults("pure-pursuit").unwrap()];
-    let mut env = VecEnv::new(c).unwrap();
+    let mut env = VecEnv::new(&paddock_sim::circuit::Circuits::new(), c).unwrap();
     assert_eq!((env.num_agents(), env.num_learners()), (3, 2));
     let start = env.frame().states.clone();
     for _ in 0..100 {

@@ -1,9 +1,7 @@
-//! Loading ROS map_server maps (YAML + PNG/PGM) and the process-wide map cache.
+//! Loading ROS map_server maps (YAML + PNG/PGM), from files or from bytes in memory.
 
-use std::collections::HashMap;
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, OnceLock, Weak};
-use std::time::SystemTime;
 
 use serde_norway::Value;
 
@@ -69,92 +67,62 @@ enum Mode {
     Raw,
 }
 
-#[derive(Clone, PartialEq, Eq, Hash)]
-struct CacheKey {
-    yaml: (PathBuf, u64, Option<SystemTime>),
-    image: (PathBuf, u64, Option<SystemTime>),
-    rule: OccupancyRule,
-}
-
-/// Maps stay alive only as long as someone holds them; the cache never keeps one alive.
-fn cache() -> &'static Mutex<HashMap<CacheKey, Weak<Map>>> {
-    static CACHE: OnceLock<Mutex<HashMap<CacheKey, Weak<Map>>>> = OnceLock::new();
-    CACHE.get_or_init(|| Mutex::new(HashMap::new()))
-}
-
-fn file_id(path: &Path) -> Result<(PathBuf, u64, Option<SystemTime>), MapError> {
-    let io = |source| MapError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let canon = std::fs::canonicalize(path).map_err(io)?;
-    let meta = std::fs::metadata(&canon).map_err(io)?;
-    Ok((canon, meta.len(), meta.modified().ok()))
-}
-
 impl Map {
-    /// Load a ROS map_server map (YAML + image) with [`OccupancyRule::Ros`]. Cached
-    /// process-wide: loading the same unchanged file again while the first map is alive
-    /// returns the same `Arc` (key: canonical path, size and mtime of the YAML and of the
-    /// image, and the rule).
-    pub fn load(yaml: &Path) -> Result<Arc<Map>, MapError> {
+    /// Load a ROS map_server map (YAML + image) with [`OccupancyRule::Ros`]. Every call
+    /// reads and builds the map again: a program that uses a map many times keeps it (a
+    /// [`crate::circuit::Circuits`] registry keeps each circuit's map).
+    pub fn load(yaml: &Path) -> Result<Map, MapError> {
         Self::load_with(yaml, OccupancyRule::Ros)
     }
 
     /// [`Map::load`] with an explicit occupancy rule.
-    pub fn load_with(yaml: &Path, rule: OccupancyRule) -> Result<Arc<Map>, MapError> {
-        let yaml_id = file_id(yaml)?;
-        let text = std::fs::read_to_string(&yaml_id.0).map_err(|source| MapError::Io {
+    pub fn load_with(yaml: &Path, rule: OccupancyRule) -> Result<Map, MapError> {
+        let text = std::fs::read_to_string(yaml).map_err(|source| MapError::Io {
             path: yaml.to_path_buf(),
             source,
         })?;
-        let spec = parse_yaml(yaml, &text)?;
-        let image_id = file_id(&spec.image).map_err(|e| match e {
-            MapError::Io { path, source } => MapError::Image {
-                path,
-                yaml: yaml.to_path_buf(),
-                message: source.to_string(),
-            },
-            other => other,
+        Self::from_yaml(yaml, &text, rule, |image| {
+            std::fs::read(image).map(Cow::Owned)
+        })
+    }
+
+    /// A map from the text of its YAML and a reader of the image file it names (the
+    /// YAML's `image:`, relative to the folder of `yaml` unless absolute). `yaml` names
+    /// the map (its file stem) and the errors; nothing is read but what `read_image`
+    /// reads, so maps held in memory (the shipped maps) load without touching the disk.
+    pub fn from_yaml<'a>(
+        yaml: &Path,
+        text: &str,
+        rule: OccupancyRule,
+        read_image: impl FnOnce(&Path) -> std::io::Result<Cow<'a, [u8]>>,
+    ) -> Result<Map, MapError> {
+        let spec = parse_yaml(yaml, text)?;
+        let bytes = read_image(&spec.image).map_err(|e| MapError::Image {
+            path: spec.image.clone(),
+            yaml: yaml.to_path_buf(),
+            message: e.to_string(),
         })?;
-        let key = CacheKey {
-            yaml: yaml_id,
-            image: image_id,
-            rule,
-        };
-        if let Some(map) = cache()
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(&key)
-            .and_then(Weak::upgrade)
-        {
-            return Ok(map);
-        }
-        // Built outside the lock: a slow load does not block other maps.
         let name = yaml
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let map = Arc::new(build(yaml, &name, &spec, rule)?);
-        let mut guard = cache().lock().unwrap_or_else(|p| p.into_inner());
-        guard.retain(|_, w| w.strong_count() > 0);
-        // If another thread loaded the same file meanwhile, everyone shares its map.
-        if let Some(existing) = guard.get(&key).and_then(Weak::upgrade) {
-            return Ok(existing);
-        }
-        guard.insert(key, Arc::downgrade(&map));
-        Ok(map)
+        build(yaml, &name, &spec, &bytes, rule)
     }
 }
 
-fn build(yaml: &Path, name: &str, spec: &MapSpec, rule: OccupancyRule) -> Result<Map, MapError> {
+fn build(
+    yaml: &Path,
+    name: &str,
+    spec: &MapSpec,
+    bytes: &[u8],
+    rule: OccupancyRule,
+) -> Result<Map, MapError> {
     let img_err = |message: String| MapError::Image {
         path: spec.image.clone(),
         yaml: yaml.to_path_buf(),
         message,
     };
-    let bytes = std::fs::read(&spec.image).map_err(|e| img_err(e.to_string()))?;
-    let grey = decode_image(&bytes).map_err(img_err)?;
+    let grey = decode_image(bytes).map_err(img_err)?;
     let (w, h) = (grey.width() as usize, grey.height() as usize);
     if w == 0 || h == 0 {
         return Err(img_err(format!("empty image {w} x {h}")));

@@ -11,8 +11,8 @@
 //! - the exact Euclidean distance transform ([`Map::distance_field`]), built on first
 //!   use, needed only by the reference (f1tenth_gym) scan mode.
 //!
-//! Maps loaded from files are cached process-wide ([`Map::load`]): only immutable maps are
-//! shared, so several maps coexist without interfering.
+//! A map is a plain value: nothing here keeps maps beyond the values a caller holds (a
+//! [`crate::circuit::Circuits`] registry is how a program loads each map once).
 
 mod edt;
 mod load;

@@ -11,9 +11,7 @@ const STEP: i32 = EnvOp::EnvStep as i32;
 const CLOSE: i32 = EnvOp::EnvClose as i32;
 
 fn lakeside() -> MapRef {
-    let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
-    let b = paddock_proto::read_map_dir(&dir, "lakeside").unwrap();
-    paddock_wire::map_ref(&b)
+    paddock_wire::map_ref(&paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap())
 }
 
 fn open_msg(num_envs: u32) -> EnvOpen {
@@ -105,13 +103,8 @@ fn open_reset_step_close() {
     let time = unpack_f64(&st.time, "time").unwrap();
     assert_eq!(time, vec![0.02; 3]);
     // the same through a VecEnv directly: the frames are its frame, packed
-    let cfg = paddock_wire::env::config_from_proto(
-        &open_msg(3),
-        &Circuit::resolve("lakeside", &[]).unwrap().dir,
-        None,
-    )
-    .unwrap();
-    let mut env = VecEnv::new(cfg).unwrap();
+    let cfg = paddock_wire::env::config_from_proto(&open_msg(3), "lakeside", None).unwrap();
+    let mut env = VecEnv::new(&Circuits::new(), cfg).unwrap();
     env.reset(&[], &[1, 2, 3], None).unwrap();
     let f = env.step(&[0.0, 2.0, 0.0, 2.0, 0.0, 2.0], &[]).unwrap();
     assert_eq!(observation(f), vec![st.encode_to_vec(), st_scans.clone()]);
@@ -184,13 +177,12 @@ fn a_worker_vehicle_replaces_only_the_default_one() {
         mu: 0.6,
         ..Default::default()
     };
-    let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
     let mut o = open_msg(1);
     o.opponents = vec![paddock_proto::AgentSpec {
         driver: "pure-pursuit".into(),
         ..Default::default()
     }];
-    let cfg = paddock_wire::env::config_from_proto(&o, &dir, Some(&fitted)).unwrap();
+    let cfg = paddock_wire::env::config_from_proto(&o, "lakeside", Some(&fitted)).unwrap();
     assert_eq!(cfg.vehicle, fitted);
     assert_eq!(cfg.opponents[0].vehicle, fitted);
     // a request that carries its own vehicle keeps it
@@ -200,12 +192,12 @@ fn a_worker_vehicle_replaces_only_the_default_one() {
     };
     o.vehicle_yaml = own.to_yaml_string();
     assert_eq!(
-        paddock_wire::env::config_from_proto(&o, &dir, Some(&fitted))
+        paddock_wire::env::config_from_proto(&o, "lakeside", Some(&fitted))
             .unwrap()
             .vehicle,
         own
     );
-    let plain = paddock_wire::env::config_from_proto(&open_msg(1), &dir, None).unwrap();
+    let plain = paddock_wire::env::config_from_proto(&open_msg(1), "lakeside", None).unwrap();
     assert_eq!(plain.vehicle, VehicleParams::default());
 }
 
@@ -296,8 +288,8 @@ fn bad_requests_name_the_field() {
 fn maps_from_the_cache_by_hash() {
     let tmp = std::env::temp_dir().join(format!("paddock-sessions-{}", std::process::id()));
     let cache = MapCache::open(&tmp).unwrap();
-    let dir = Circuit::resolve("lakeside", &[]).unwrap().dir.clone();
-    let bundle = paddock_proto::read_map_dir(&dir, "custom-name").unwrap();
+    let mut bundle = paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap();
+    bundle.name = "custom-name".into();
     cache.store(&bundle).unwrap();
     let mut s = Sessions::new();
     s.set_map_cache(cache);
