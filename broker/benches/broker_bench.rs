@@ -12,13 +12,16 @@
 //! the scaling from one to two workers) are measured with real worker processes by
 //! `paddock perf-cluster`, not here.
 
+#[path = "observation.rs"]
+mod observation;
+
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use paddock_broker::client::Client;
 use paddock_broker::{Broker, BrokerConfig, RouteOnly};
-use paddock_proto::{Body, EnvOp, decode, encode, pack_f32, pack_f64};
+use paddock_proto::{Body, EnvOp, decode, encode, pack_f32};
 use prost::Message;
 
 const BEAMS: usize = 1080;
@@ -90,20 +93,9 @@ fn echo_worker(
                 s.send_multipart([header(0), opened.encode_to_vec()], 0)
                     .unwrap();
             } else if r.op == EnvOp::EnvStep as i32 {
-                let obs = paddock_proto::EnvObservation {
-                    num_envs: num_envs as u32,
-                    states: pack_f64(&vec![0.25; num_envs * 7]),
-                    rewards: pack_f64(&vec![0.1; num_envs]),
-                    terminated: vec![0; num_envs],
-                    truncated: vec![0; num_envs],
-                    progress: pack_f64(&vec![1.0; num_envs]),
-                    laps: vec![0; 4 * num_envs],
-                    time: pack_f64(&vec![0.01; num_envs]),
-                    ..Default::default()
-                };
-                let scans = pack_f32(&vec![1.5; num_envs * BEAMS]);
-                s.send_multipart([header(7), obs.encode_to_vec(), scans], 0)
-                    .unwrap();
+                let mut frames = vec![header(7)];
+                frames.extend(observation::observation(num_envs, BEAMS));
+                s.send_multipart(frames, 0).unwrap();
                 spin_until = Instant::now() + spin(2);
             }
         }

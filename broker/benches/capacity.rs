@@ -16,12 +16,15 @@
 //! (an env step is two: the step and its observation; a task is two: the assignment and
 //! its result).
 
+#[path = "observation.rs"]
+mod observation;
+
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use paddock_broker::{Broker, BrokerConfig, RouteOnly};
-use paddock_proto::{Body, EnvOp, decode, encode, pack_f32, pack_f64};
+use paddock_proto::{Body, EnvOp, decode, encode, pack_f32};
 use prost::Message;
 
 const BEAMS: usize = 1080;
@@ -41,24 +44,6 @@ fn cpu_ns(tid: &str) -> u64 {
         .ok()
         .and_then(|s| s.split_whitespace().next()?.parse().ok())
         .unwrap_or(0)
-}
-
-/// The payload frames of an observation of `num_envs` envs: the message and the scans.
-fn observation(num_envs: usize, beams: usize) -> Vec<Vec<u8>> {
-    let meta = paddock_proto::EnvObservation {
-        num_envs: num_envs as u32,
-        states: pack_f64(&vec![0.25; num_envs * 7]),
-        rewards: pack_f64(&vec![0.1; num_envs]),
-        terminated: vec![0; num_envs],
-        truncated: vec![0; num_envs],
-        progress: pack_f64(&vec![1.0; num_envs]),
-        laps: vec![0; 4 * num_envs],
-        time: pack_f64(&vec![0.01; num_envs]),
-        agent_collisions: vec![0; num_envs],
-        agent_lap_counts: vec![0; 4 * num_envs],
-        agent_lap_times: pack_f64(&vec![0.0; num_envs]),
-    };
-    vec![meta.encode_to_vec(), pack_f32(&vec![1.5; num_envs * beams])]
 }
 
 fn send_frames(s: &zmq::Socket, frames: Vec<Vec<u8>>) {
@@ -136,7 +121,7 @@ fn fake_worker(
                         .map_or((1, BEAMS), |(_, n)| *n);
                     let obs = obs_cache
                         .entry(n)
-                        .or_insert_with(|| observation(n.0, n.1))
+                        .or_insert_with(|| observation::observation(n.0, n.1))
                         .clone();
                     let header = paddock_proto::EnvReply {
                         session_id: r.session_id,
