@@ -77,6 +77,11 @@ impl Proc {
         }
     }
 
+    /// Everything the process wrote to stderr so far.
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(self.log.path()).unwrap_or_default()
+    }
+
     /// The last lines the process wrote to stderr.
     pub fn log_tail(&self) -> String {
         let text = std::fs::read_to_string(self.log.path()).unwrap_or_default();
@@ -149,11 +154,36 @@ pub struct Cluster {
     pub maps: tempfile::TempDir,
     pub broker: Option<Proc>,
     pub workers: Vec<Proc>,
+    /// Flags the broker is started with besides its endpoints and state.
+    pub broker_args: Vec<String>,
+    /// How the test's own status client connects (CURVE when the broker has keys).
+    pub curve: paddock_broker::curve::Curve,
 }
 
 impl Cluster {
     /// A broker with `workers` workers of `threads` threads each, all registered.
     pub fn start(workers: usize, threads: usize) -> Cluster {
+        Self::start_with(workers, threads, &[])
+    }
+
+    /// [`Cluster::start`] with more broker flags (`--sessions-per-client 2`, ...).
+    pub fn start_with(workers: usize, threads: usize, broker_args: &[&str]) -> Cluster {
+        Self::start_secured(
+            workers,
+            threads,
+            broker_args,
+            paddock_broker::curve::Curve::Off,
+        )
+    }
+
+    /// [`Cluster::start_with`] for a broker with CURVE keys (in `broker_args`): the
+    /// test's status client connects with `curve`; no workers are started.
+    pub fn start_secured(
+        workers: usize,
+        threads: usize,
+        broker_args: &[&str],
+        curve: paddock_broker::curve::Curve,
+    ) -> Cluster {
         let mut c = Cluster {
             front: String::new(),
             back: String::new(),
@@ -161,6 +191,8 @@ impl Cluster {
             maps: tempfile::tempdir().expect("a maps directory"),
             broker: None,
             workers: Vec::new(),
+            broker_args: broker_args.iter().map(|a| a.to_string()).collect(),
+            curve,
         };
         // a port found free can be taken by another socket before the broker binds it:
         // then the broker exits, and it starts again on other ports
@@ -188,18 +220,17 @@ impl Cluster {
     /// Starts (or restarts) the broker on the same endpoints and state directory.
     pub fn start_broker(&mut self) {
         let state = self.state.path().display().to_string();
-        self.broker = Some(Proc::spawn(
+        let mut args = vec![
             "broker",
-            &[
-                "broker",
-                "--bind",
-                &self.front,
-                "--worker-bind",
-                &self.back,
-                "--state",
-                &state,
-            ],
-        ));
+            "--bind",
+            &self.front,
+            "--worker-bind",
+            &self.back,
+            "--state",
+            &state,
+        ];
+        args.extend(self.broker_args.iter().map(String::as_str));
+        self.broker = Some(Proc::spawn("broker", &args));
     }
 
     pub fn add_worker(&mut self, threads: usize) {
@@ -234,7 +265,7 @@ impl Cluster {
 
     /// The number of workers the broker counts as alive (status request in-process).
     pub fn workers_alive(&self) -> Option<usize> {
-        let mut c = paddock_broker::client::Client::connect(&self.front).ok()?;
+        let mut c = paddock_broker::client::Client::connect_with(&self.front, &self.curve).ok()?;
         c.timeout = Duration::from_secs(2);
         match c.request(paddock_proto::Body::StatusRequest(
             paddock_proto::StatusRequest {},

@@ -78,6 +78,12 @@ pub struct Client {
     /// How long [`Client::recv`] polls without blocking before it sleeps: a reply that
     /// comes sooner (an env step) needs no thread wake-up. Zero: always block.
     pub spin: Duration,
+    /// Sent in every request's Envelope (`client_token`): who this client is to a broker
+    /// without CURVE. A new client carries this user's token
+    /// (`paddock_libzmq::token::user_token`, the file the CLI and the Python client
+    /// share), so its jobs and sessions stay reachable from its next connection. Empty:
+    /// none (the client is its connection).
+    pub token: Vec<u8>,
 }
 
 impl Client {
@@ -107,6 +113,7 @@ impl Client {
             next_id: 1,
             timeout: Duration::from_secs(60),
             spin: crate::server::DEFAULT_SPIN,
+            token: paddock_libzmq::token::user_token().unwrap_or_default(),
         })
     }
 
@@ -119,7 +126,7 @@ impl Client {
     pub fn send_with(&mut self, body: Body, payload: Vec<Vec<u8>>) -> Result<u64, ClientError> {
         let id = self.next_id;
         self.next_id += 1;
-        let header = paddock_proto::encode(id, body);
+        let header = paddock_proto::encode_with_token(id, self.token.clone(), body);
         let flags = if payload.is_empty() { 0 } else { zmq::SNDMORE };
         self.socket.send(header, flags).map_err(ClientError::Send)?;
         let n = payload.len();

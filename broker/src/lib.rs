@@ -37,8 +37,8 @@ pub mod state;
 
 /// ZeroMQ with CURVE: key pairs, socket security, the ZAP authenticator.
 pub use paddock_libzmq as curve;
-pub use plan::{JobOutput, JobPlan, Planner, Round, RouteOnly, Stored};
-pub use server::{Broker, BrokerConfig, BrokerError, Security};
+pub use plan::{JobOutput, JobPlan, Planner, Round, RouteOnly, Stored, TaskBudget};
+pub use server::{Bounds, Broker, BrokerConfig, BrokerError, Security};
 /// The ZeroMQ binding the broker is built on: a process that embeds the broker and its
 /// workers creates one [`zmq::Context`] for both ([`Broker::bind_in`]).
 pub use zmq;

@@ -21,8 +21,8 @@ use paddock_proto::{
 };
 use prost::Message;
 
-use crate::core::{ClientKey, WorkerKey};
-use crate::plan::{JobPlan, Planner, Round, Stored};
+use crate::core::{ClientKey, Principal, WorkerKey};
+use crate::plan::{JobPlan, Planner, Round, Stored, TaskBudget};
 use crate::server::BrokerError;
 use crate::state::{JobRecord, Store, unix_now};
 
@@ -31,14 +31,19 @@ pub(crate) enum Command {
     /// Check a client's batch; queue it (an [`Event::Queue`]) or refuse it.
     CheckBatch {
         client: ClientKey,
+        who: Principal,
         rid: u64,
         batch: paddock_proto::RolloutBatch,
     },
     /// A job request: submit, status, list, cancel, result or watch.
     Job {
         client: ClientKey,
+        /// Who asks: jobs belong to the principal that submitted them.
+        owner: Principal,
+        /// An admin key: sees and manages every job.
+        admin: bool,
         rid: u64,
-        body: Body,
+        body: Box<Body>,
     },
     /// The outcomes of a job's round, in task order.
     RoundDone {
@@ -72,6 +77,7 @@ pub(crate) enum Command {
 pub(crate) enum Owner {
     Batch {
         client: ClientKey,
+        who: Principal,
         rid: u64,
         progress: bool,
     },
@@ -94,6 +100,9 @@ pub(crate) enum Event {
     Queue {
         owner: Owner,
         scenarios: Vec<(String, Vec<u8>)>,
+        /// What a task of each scenario asks of a worker (its deadline), where the
+        /// planner can tell.
+        budgets: Vec<Option<TaskBudget>>,
         tasks: Vec<RolloutTaskSpec>,
     },
     /// Drop a cancelled job's round.
@@ -154,6 +163,14 @@ pub(crate) struct OfficeLimits {
     pub max_jobs: usize,
     /// Most tasks in one round (a job whose round is larger fails).
     pub max_round_tasks: usize,
+    /// Largest message: a batch whose results would not fit is refused before the work.
+    pub max_message_bytes: usize,
+    /// Job names, submissions, and jobs stored per client.
+    pub max_job_name_bytes: usize,
+    pub max_job_submit_bytes: usize,
+    pub max_jobs_per_client: usize,
+    /// Bytes of maps and blobs the store may hold (shipped maps not counted).
+    pub max_store_bytes: u64,
 }
 
 struct RunningJob {
@@ -223,15 +240,59 @@ impl State {
         });
     }
 
+    /// Refuses a request (the socket thread counts and logs it, within the log's rate).
     fn refuse(&self, peer: &[u8], rid: u64, e: paddock_proto::Error) {
-        tracing::warn!(
-            request_id = rid,
-            code = paddock_proto::code_name(e.code),
-            field = %e.field,
-            message = %e.message,
-            "request refused"
-        );
         self.reply(peer, rid, Body::Error(e));
+    }
+
+    /// The budgets of a batch's scenarios, after checking that its results fit in one
+    /// message: a batch whose outcomes could exceed it is refused before any work, with
+    /// the size and how to split it.
+    fn check_result_size(
+        &self,
+        batch: &paddock_proto::RolloutBatch,
+        prefix: &str,
+    ) -> Result<Vec<Option<TaskBudget>>, paddock_proto::Error> {
+        let budgets: Vec<Option<TaskBudget>> = batch
+            .scenarios
+            .iter()
+            .map(|s| self.planner.budget(s))
+            .collect();
+        let limit = self.limits.max_message_bytes as u64;
+        let mut total: u64 = 0;
+        for (j, t) in batch.tasks.iter().enumerate() {
+            let Some(Some(b)) = budgets.get(t.scenario as usize) else {
+                continue;
+            };
+            let bytes = b.result_bytes(t.record_decimation);
+            if bytes > limit {
+                return Err(error(
+                    ErrorCode::TooLarge,
+                    format!("{prefix}.tasks[{j}].record_decimation"),
+                    format!(
+                        "{prefix}.tasks[{j}]: its trajectory (record_decimation = {}) could take {:.1} MiB, over the {:.0} MiB a message may carry: record every Nth step with a larger decimation",
+                        t.record_decimation,
+                        bytes as f64 / 1048576.0,
+                        limit as f64 / 1048576.0
+                    ),
+                ));
+            }
+            total += bytes;
+        }
+        if total > limit {
+            let parts = total.div_ceil(limit);
+            return Err(error(
+                ErrorCode::TooLarge,
+                format!("{prefix}.tasks"),
+                format!(
+                    "the results of these {} tasks could take {:.1} MiB, over the {:.0} MiB a message may carry: split the batch into at least {parts} batches (paddock rollout does this by itself)",
+                    batch.tasks.len(),
+                    total as f64 / 1048576.0,
+                    limit as f64 / 1048576.0
+                ),
+            ));
+        }
+        Ok(budgets)
     }
 
     fn to_worker(&self, worker: &[u8], rid: u64, body: Body) {
@@ -246,12 +307,18 @@ impl State {
 
     fn handle(&mut self, command: Command) {
         match command {
-            Command::CheckBatch { client, rid, batch } => {
-                match self
+            Command::CheckBatch {
+                client,
+                who,
+                rid,
+                batch,
+            } => {
+                let checked = self
                     .planner
                     .check_batch(&batch, &self.store, "rollout_batch")
-                {
-                    Ok(()) => {
+                    .and_then(|()| self.check_result_size(&batch, "rollout_batch"));
+                match checked {
+                    Ok(budgets) => {
                         let scenarios = batch
                             .scenarios
                             .into_iter()
@@ -260,17 +327,25 @@ impl State {
                         self.emit(Event::Queue {
                             owner: Owner::Batch {
                                 client,
+                                who,
                                 rid,
                                 progress: batch.progress,
                             },
                             scenarios,
+                            budgets,
                             tasks: batch.tasks,
                         });
                     }
                     Err(e) => self.refuse(&client, rid, e),
                 }
             }
-            Command::Job { client, rid, body } => self.on_job(client, rid, body),
+            Command::Job {
+                client,
+                owner,
+                admin,
+                rid,
+                body,
+            } => self.on_job(client, &owner, admin, rid, *body),
             Command::RoundDone { job_id, outcomes } => self.round_done(&job_id, outcomes),
             Command::PutMap { client, rid, put } => self.put_map(&client, rid, put),
             Command::MapRequest { worker, rid, hash } => match self.store.map_bundle(&hash) {
@@ -290,18 +365,16 @@ impl State {
                     Body::Error(error(ErrorCode::Internal, "map_request.hash", e.to_string())),
                 ),
             },
-            Command::PutBlob { client, rid, data } => match self.store.put_blob(&data) {
-                Ok(hash) => {
-                    tracing::info!(hash = %hash, bytes = data.len(), "blob stored");
-                    self.reply(&client, rid, Body::BlobStored(paddock_proto::BlobStored { hash }));
+            Command::PutBlob { client, rid, data } => {
+                if !self.store.has_blob(&paddock_proto::blob_hash(&data))
+                    && !self.room_for(&client, rid, data.len() as u64, "put_blob.data")
+                {
+                    return;
                 }
-                Err(e) => self.refuse(
-                    &client,
-                    rid,
-                    error(ErrorCode::Internal, "put_blob.data", e.to_string()),
-                ),
-            },
+                self.put_blob(&client, rid, &data)
+            }
             Command::BlobRequest { worker, rid, hash } => match self.store.blob(&hash) {
+
                 Ok(Some(data)) => {
                     self.to_worker(&worker, rid, Body::Blob(paddock_proto::Blob { hash, data }))
                 }
@@ -326,6 +399,48 @@ impl State {
         }
     }
 
+    fn put_blob(&self, client: &[u8], rid: u64, data: &[u8]) {
+        match self.store.put_blob(data) {
+            Ok(hash) => {
+                tracing::info!(hash = %hash, bytes = data.len(), "blob stored");
+                self.reply(
+                    client,
+                    rid,
+                    Body::BlobStored(paddock_proto::BlobStored { hash }),
+                );
+            }
+            Err(e) => self.refuse(
+                client,
+                rid,
+                error(ErrorCode::Internal, "put_blob.data", e.to_string()),
+            ),
+        }
+    }
+
+    /// Whether the store has room for `bytes` more; refuses the request when not.
+    fn room_for(&self, client: &[u8], rid: u64, bytes: u64, field: &str) -> bool {
+        let held = self.store.stored_bytes();
+        let limit = self.limits.max_store_bytes;
+        if held.saturating_add(bytes) <= limit {
+            return true;
+        }
+        self.refuse(
+            client,
+            rid,
+            error(
+                ErrorCode::Busy,
+                field,
+                format!(
+                    "the broker's store holds {:.1} MiB of maps and models; {:.1} MiB more would exceed its limit of {:.0} MiB (--max-store-mib)",
+                    held as f64 / 1048576.0,
+                    bytes as f64 / 1048576.0,
+                    limit as f64 / 1048576.0
+                ),
+            ),
+        );
+        false
+    }
+
     fn put_map(&mut self, client: &[u8], rid: u64, p: paddock_proto::PutMap) {
         let Some(bundle) = p.bundle else {
             return self.refuse(
@@ -347,6 +462,12 @@ impl State {
                 format!("put_map.{}", e.field)
             };
             return self.refuse(client, rid, e);
+        }
+        let bytes: u64 = bundle.files.iter().map(|f| f.data.len() as u64).sum();
+        if !matches!(self.store.has_map(&bundle.hash), Ok(true))
+            && !self.room_for(client, rid, bytes, "put_map.bundle")
+        {
+            return;
         }
         match self.store.put_map(&bundle) {
             Ok(()) => {

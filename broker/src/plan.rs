@@ -43,8 +43,46 @@ pub struct JobOutput {
     pub outcomes: Vec<Vec<u8>>,
 }
 
+/// What one task of a scenario asks of a worker, as the planner reads it from the
+/// scenario: the broker derives the task's deadline and the size of its result from it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TaskBudget {
+    /// The most simulated seconds an episode may last.
+    pub sim_seconds: f64,
+    /// The most physics steps an episode may take.
+    pub steps: u64,
+    /// Cars in the episode.
+    pub agents: u32,
+    /// Laps an episode may run (each car's lap times grow with them).
+    pub laps: u32,
+}
+
+impl TaskBudget {
+    /// The most bytes a task's outcome can take with the trajectory recorded every
+    /// `record_decimation` steps (0: no trajectory): the episode's summary (a little
+    /// over 100 bytes per car and 8 per lap time), and per sample its time and five f64
+    /// per car (`paddock.v1.Trajectory`).
+    pub fn result_bytes(&self, record_decimation: u32) -> u64 {
+        let agents = u64::from(self.agents);
+        let summary = 128 + agents * (128 + 8 * u64::from(self.laps.min(10_000)));
+        if record_decimation == 0 {
+            return summary;
+        }
+        let samples = self.steps / u64::from(record_decimation) + 2;
+        summary + samples * 8 * (1 + 5 * agents) + agents * 64
+    }
+}
+
 /// The domain side of jobs and batches; see the module documentation.
 pub trait Planner: Send + 'static {
+    /// What a task of this scenario (an encoded `paddock.v1.Scenario`) asks of a
+    /// worker; None when the planner does not read scenarios (the broker then gives its
+    /// tasks a fixed deadline and checks no result size before the work).
+    fn budget(&self, scenario: &[u8]) -> Option<TaskBudget> {
+        let _ = scenario;
+        None
+    }
+
     /// Checks every scenario and task of a batch before it is queued; an error names the
     /// first bad field under `prefix` (e.g. `rollout_batch.scenarios[2].laps`).
     fn check_batch(

@@ -35,7 +35,7 @@ pub struct JobsArgs {
 
 #[derive(Subcommand)]
 pub enum JobsCommand {
-    /// Every job the broker stores.
+    /// This client's jobs the broker stores (an admin key: everyone's), newest last.
     List,
     /// One job's state and progress.
     Status {
@@ -54,6 +54,12 @@ pub enum JobsCommand {
     },
     /// A finished job's result document.
     Result {
+        /// The job's id (`paddock jobs list`).
+        job_id: String,
+    },
+    /// Delete a job and its result from the broker (a queued or running job is
+    /// cancelled first).
+    Delete {
         /// The job's id (`paddock jobs list`).
         job_id: String,
     },
@@ -283,6 +289,23 @@ pub fn jobs(args: &JobsArgs, circuits: &Circuits) -> Result<()> {
             }
             if i.state != JobState::Succeeded as i32 {
                 bail!("job {} ended {}", i.job_id, state_name(i.state));
+            }
+        }
+        JobsCommand::Delete { job_id } => {
+            let Body::JobDeleted(d) =
+                remote.request(Body::JobDelete(paddock_proto::JobDelete {
+                    job_id: job_id.clone(),
+                }))?
+            else {
+                bail!("unexpected reply to job_delete");
+            };
+            if args.json {
+                outln!(
+                    "{}",
+                    serde_json::json!({ "job_id": d.job_id, "deleted": true })
+                );
+            } else {
+                outln!("{} deleted", d.job_id);
             }
         }
         JobsCommand::Cancel { job_id } => {

@@ -1,6 +1,7 @@
 //! `paddock`: the command-line front door of Paddock.
 
 mod args;
+mod bounds_args;
 mod bridge_cmd;
 mod demo;
 mod jobs_cmd;

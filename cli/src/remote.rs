@@ -54,6 +54,8 @@ impl Remote {
     /// A connection to the broker at `endpoint`; maps named in requests are found in
     /// `circuits`.
     pub fn connect(endpoint: &str, circuits: &Circuits) -> Result<Self> {
+        // the client carries this user's token: its jobs and sessions are this user's on a
+        // broker without CURVE too
         let client = Client::connect_with(endpoint, &security())
             .with_context(|| format!("connecting to the broker at {endpoint}"))?;
         Ok(Self {
@@ -267,26 +269,67 @@ impl RemoteExecutor {
     }
 }
 
+/// Bytes of results one batch through a broker brings back at most: half the broker's
+/// message limit, so a batch never comes near it.
+const BATCH_RESULT_BYTES: u64 = (paddock_proto::MAX_MESSAGE_BYTES / 2) as u64;
+
+/// The most bytes a task's outcome can take (the bound the broker checks before any
+/// work; see `paddock_broker::TaskBudget`).
+fn result_bytes(t: &EpisodeTask) -> u64 {
+    let s = &t.scenario;
+    let budget = paddock_broker::TaskBudget {
+        sim_seconds: s.time_limit,
+        steps: (s.time_limit / paddock_sim::world::WorldConfig::default().dt).ceil() as u64,
+        agents: s.agents.len() as u32,
+        laps: s.laps,
+    };
+    budget.result_bytes(paddock_wire::record_to_proto(t.record))
+}
+
+/// Consecutive runs of `tasks` whose results each fit in `limit` bytes (a task larger
+/// than `limit` alone: the broker then refuses it with the reason).
+fn result_chunks(tasks: &[EpisodeTask], limit: u64) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let (mut start, mut bytes) = (0, 0u64);
+    for (i, t) in tasks.iter().enumerate() {
+        let b = result_bytes(t);
+        if i > start && bytes + b > limit {
+            out.push(start..i);
+            (start, bytes) = (i, 0);
+        }
+        bytes += b;
+    }
+    if start < tasks.len() {
+        out.push(start..tasks.len());
+    }
+    out
+}
+
 impl Executor for RemoteExecutor {
+    /// Runs the tasks as one batch, or as consecutive batches when their results
+    /// (trajectories) would not fit in one message.
     fn run_batch(
         &self,
         tasks: &[EpisodeTask],
         progress: &(dyn Fn(usize) + Sync),
     ) -> Vec<Result<EpisodeResult, RolloutError>> {
         let mut remote = self.remote.lock().unwrap_or_else(|e| e.into_inner());
-        match remote.run_batch(tasks, progress) {
-            Ok(r) => r,
-            Err(e) => tasks
-                .iter()
-                .map(|_| {
+        let mut out = Vec::with_capacity(tasks.len());
+        for chunk in result_chunks(tasks, BATCH_RESULT_BYTES) {
+            let done = chunk.start;
+            let part = &tasks[chunk];
+            match remote.run_batch(part, &|n| progress(done + n)) {
+                Ok(r) => out.extend(r),
+                Err(e) => out.extend(part.iter().map(|_| {
                     Err(RolloutError::Invalid {
                         field: "endpoint".into(),
                         value: self.endpoint.clone(),
                         reason: format!("{e:#}"),
                     })
-                })
-                .collect(),
+                })),
+            }
         }
+        out
     }
 
     fn parallelism(&self) -> usize {
@@ -326,5 +369,40 @@ pub fn executor(
             }
             Ok(Box::new(exec))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn batches_whose_trajectories_would_not_fit_are_cut_into_runs_that_do() {
+        let mut s = paddock_rollout::Scenario::single("pure-pursuit").unwrap();
+        s.time_limit = 60.0;
+        let s = std::sync::Arc::new(s);
+        let task = |record| EpisodeTask {
+            scenario: s.clone(),
+            seed: 1,
+            record,
+        };
+        // 600 episodes of 60 s with every step recorded: ~290 KB each, ~170 MB in all
+        let tasks: Vec<EpisodeTask> = (0..600).map(|_| task(Some(1))).collect();
+        let per = result_bytes(&tasks[0]);
+        assert!(per > 250_000 && per < 400_000, "{per}");
+        let chunks = result_chunks(&tasks, BATCH_RESULT_BYTES);
+        assert!(chunks.len() >= 6, "{chunks:?}");
+        assert_eq!(chunks.first().unwrap().start, 0);
+        assert_eq!(chunks.last().unwrap().end, 600);
+        for w in chunks.windows(2) {
+            assert_eq!(w[0].end, w[1].start, "consecutive, nothing lost");
+        }
+        for c in &chunks {
+            let bytes: u64 = tasks[c.clone()].iter().map(result_bytes).sum();
+            assert!(bytes <= BATCH_RESULT_BYTES, "{c:?}: {bytes}");
+        }
+        // summaries alone go as one batch
+        let small: Vec<EpisodeTask> = (0..10_000).map(|_| task(None)).collect();
+        assert_eq!(result_chunks(&small, BATCH_RESULT_BYTES), vec![0..10_000]);
     }
 }

@@ -14,6 +14,7 @@ use paddock_sim::circuit::Circuits;
 use paddock_worker::{WorkerConfig, WorkerThread};
 
 use crate::args::{self, outln};
+use crate::bounds_args::BoundsArgs;
 use crate::remote::Remote;
 
 #[derive(Args)]
@@ -54,6 +55,12 @@ pub struct BrokerArgs {
     /// Touch this file every second while the broker runs (container health check).
     #[arg(long, value_name = "FILE")]
     pub health_file: Option<PathBuf>,
+    /// Public key file of an admin client (repeatable): it sees and manages every
+    /// client's jobs. Needs --secret-key.
+    #[arg(long, value_name = "FILE", requires = "secret_key")]
+    pub admin_key: Vec<PathBuf>,
+    #[command(flatten)]
+    pub bounds: BoundsArgs,
 }
 
 #[derive(Args)]
@@ -100,6 +107,8 @@ pub struct ServeArgs {
     /// vehicle (default: the f1tenth_gym vehicle); requests that carry one keep theirs.
     #[arg(long, value_name = "FILE")]
     pub vehicle: Option<PathBuf>,
+    #[command(flatten)]
+    pub bounds: BoundsArgs,
 }
 
 fn stop_flag() -> Arc<AtomicBool> {
@@ -158,10 +167,16 @@ fn broker_security(args: &BrokerArgs) -> Result<Option<Security>> {
         }
         Ok(d)
     };
+    let admin_keys = args
+        .admin_key
+        .iter()
+        .map(|p| paddock_libzmq::read_public(p).map_err(anyhow::Error::from))
+        .collect::<Result<Vec<_>>>()?;
     Ok(Some(Security {
         keys,
         client_keys: dir(&args.client_keys, "--client-keys")?,
         worker_keys: dir(&args.worker_keys, "--worker-keys")?,
+        admin_keys,
     }))
 }
 
@@ -178,6 +193,7 @@ fn health_beat(path: PathBuf, stop: Arc<AtomicBool>) {
 pub fn broker(args: &BrokerArgs) -> Result<()> {
     let mut cfg = BrokerConfig::new(&args.bind, &args.worker_bind, &args.state);
     cfg.security = broker_security(args)?;
+    args.bounds.apply(&mut cfg);
     cfg.maps = paddock_wire::shipped_bundles();
     let secured = cfg.security.is_some();
     let mut broker = Broker::bind(cfg, paddock_jobs::Plans).context("starting the broker")?;
@@ -250,8 +266,14 @@ pub fn serve(args: &ServeArgs, circuits: &Circuits) -> Result<()> {
     // remote workers
     let ctx = paddock_broker::zmq::Context::new();
     let local = format!("inproc://paddock-serve-workers-{}", std::process::id());
-    let broker =
-        BrokerThread::start_in(&args.bind, "tcp://127.0.0.1:0", &state, ctx.clone(), &local)?;
+    let broker = BrokerThread::start_in(
+        &args.bind,
+        "tcp://127.0.0.1:0",
+        &state,
+        ctx.clone(),
+        &local,
+        &args.bounds,
+    )?;
     let front = broker.front.clone();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = if args.threads > 0 {
@@ -321,9 +343,11 @@ impl BrokerThread {
         state: &std::path::Path,
         ctx: paddock_broker::zmq::Context,
         local: &str,
+        bounds: &BoundsArgs,
     ) -> Result<Self> {
         let mut cfg = BrokerConfig::new(bind, backend, state);
         cfg.local_backend = Some(local.to_string());
+        bounds.apply(&mut cfg);
         Self::spawn(cfg, ctx)
     }
 

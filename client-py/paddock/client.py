@@ -95,6 +95,11 @@ class Job:
         return JobInfo.from_proto(self.client.conn.request(
             "job_cancel", pb.JobCancel(job_id=self.job_id), "job_info"))
 
+    def delete(self) -> None:
+        """Delete the job and its result from the broker (cancelling it first if it is
+        still queued or running)."""
+        self.client.conn.request("job_delete", pb.JobDelete(job_id=self.job_id), "job_deleted")
+
     def result(self) -> dict[str, Any]:
         """The result document of a finished job (what ``paddock tune --json`` prints)."""
         r = self.client.conn.request("job_result_request", pb.JobResultRequest(job_id=self.job_id),
@@ -246,7 +251,7 @@ class Client:
         return Job(self, info.job_id)
 
     def jobs(self) -> list[JobInfo]:
-        """Every job the broker knows."""
+        """This client's jobs the broker stores (an admin key: everyone's), newest last."""
         listing = self.conn.request("job_list", pb.JobListRequest(), "job_listing")
         return [JobInfo.from_proto(j) for j in listing.jobs]
 

@@ -117,6 +117,58 @@ def curve_keys() -> tuple[bytes, bytes, bytes] | None:
     return (_read_key(key_file, "public"), _read_key(key_file, "secret"), _read_key(broker_file, "public"))
 
 
+def _token_path() -> str | None:
+    """Where this user's client token is kept (the same file the ``paddock`` CLI uses):
+    ``PADDOCK_CLIENT_TOKEN_FILE``, else ``$XDG_CONFIG_HOME/paddock/client-token``, else
+    ``~/.config/paddock/client-token``."""
+    import os
+
+    explicit = os.environ.get("PADDOCK_CLIENT_TOKEN_FILE")
+    if explicit:
+        return explicit
+    config = os.environ.get("XDG_CONFIG_HOME") or (
+        os.path.join(os.environ["HOME"], ".config") if os.environ.get("HOME") else None)
+    return os.path.join(config, "paddock", "client-token") if config else None
+
+
+def client_token() -> bytes:
+    """This user's client token (32 random bytes, 64 hex digits in a 0600 file made on
+    first use): who this client is to a broker without CURVE, so its jobs and env
+    sessions are its own. Empty when there is nowhere to keep it."""
+    import os
+    import secrets
+
+    path = _token_path()
+    if path is None:
+        return b""
+    try:
+        with open(path, encoding="ascii") as f:
+            text = f.read().strip()
+    except FileNotFoundError:
+        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+        text = secrets.token_hex(32)
+        tmp = f"{path}.tmp-{os.getpid()}"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w", encoding="ascii") as f:
+            f.write(text + "\n")
+        try:
+            os.link(tmp, path)  # never overwrites a token another process made first
+        except FileExistsError:
+            with open(path, encoding="ascii") as f:
+                text = f.read().strip()
+        finally:
+            os.unlink(tmp)
+    except OSError:
+        return b""
+    try:
+        token = bytes.fromhex(text)
+    except ValueError as e:
+        raise errors.PaddockError(f"client token file {path}: not 64 hex digits") from e
+    if len(token) != 32:
+        raise errors.PaddockError(f"client token file {path}: {len(text)} characters, not 64 hex digits")
+    return token
+
+
 class Connection:
     """A DEALER socket connected to a broker's client endpoint (not thread-safe: one
     request at a time; a lock serialises callers)."""
@@ -137,6 +189,7 @@ class Connection:
         self._sock: zmq.Socket | None = None
         self._monitor: zmq.Socket | None = None
         self._fingerprint = ""
+        self._token = client_token()
         self._connect()
 
     def _connect(self) -> None:
@@ -177,7 +230,8 @@ class Connection:
         if self._sock is None:
             raise errors.PaddockError(f"connection to {self.endpoint} is closed")
         rid = next(self._ids)
-        env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid)
+        env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid,
+                          client_token=self._token)
         getattr(env, field).CopyFrom(msg)
         try:
             # small frames: a copy is cheaper than zero-copy

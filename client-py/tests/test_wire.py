@@ -4,6 +4,8 @@ worker, the frames a learner gets for an env step: header, message, scans."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import zmq
@@ -33,7 +35,8 @@ def test_a_reply_with_the_wrong_frames_is_refused() -> None:
         wire.image([b"", b"", b""])
 
 
-def test_an_env_step_arrives_as_header_message_and_scans(endpoint: str) -> None:
+def test_an_env_step_arrives_as_header_message_and_scans(
+        endpoint: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The raw frames of an env step through the broker: the EnvReply header with the
     session id the broker gave at open, the EnvObservation without scans, and the scans
     frame of num_envs x num_beams f32 values."""
@@ -57,7 +60,15 @@ def test_an_env_step_arrives_as_header_message_and_scans(endpoint: str) -> None:
         assert len(frames[1].buffer) == 3 * 64 * 4
         obs = wire.observation(frames)
         assert np.frombuffer(obs.time, "<f8").tolist() == [0.01] * 3
-        # a session belongs to the connection that opened it
+        # a session belongs to the client that opened it (its client token): this user
+        # reaches it on another connection too, another client does not
+        same = Connection(endpoint)
+        try:
+            header, _ = same.env(sid, pb.ENV_STEP, step)
+            assert header.session_id == sid
+        finally:
+            same.close()
+        monkeypatch.setenv("PADDOCK_CLIENT_TOKEN_FILE", str(tmp_path / "another-client"))
         other = Connection(endpoint)
         try:
             with pytest.raises(errors.NotFound):

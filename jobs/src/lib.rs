@@ -127,6 +127,20 @@ pub(crate) fn check_batch(
 }
 
 impl Planner for Plans {
+    fn budget(&self, scenario: &[u8]) -> Option<paddock_broker::TaskBudget> {
+        let wire = <paddock_proto::Scenario as prost::Message>::decode(scenario).ok()?;
+        if !(wire.time_limit.is_finite() && wire.time_limit > 0.0) {
+            return None;
+        }
+        Some(paddock_broker::TaskBudget {
+            sim_seconds: wire.time_limit,
+            // episodes step at the simulator's default timestep
+            steps: (wire.time_limit / paddock_sim::world::WorldConfig::default().dt).ceil() as u64,
+            agents: u32::try_from(wire.agents.len()).unwrap_or(u32::MAX),
+            laps: wire.laps,
+        })
+    }
+
     fn check_batch(
         &self,
         batch: &RolloutBatch,

@@ -75,6 +75,7 @@ fn every_bad_input_gets_an_error_reply_and_the_broker_keeps_serving() {
     let old = Envelope {
         protocol_version: 9,
         request_id: 11,
+        client_token: Vec::new(),
         body: Some(Body::StatusRequest(paddock_proto::StatusRequest {})),
     };
     c.send_raw(&old.encode_to_vec());
@@ -89,6 +90,7 @@ fn every_bad_input_gets_an_error_reply_and_the_broker_keeps_serving() {
     let empty = Envelope {
         protocol_version: PROTOCOL_VERSION,
         request_id: 12,
+        client_token: Vec::new(),
         body: None,
     };
     c.send_raw(&empty.encode_to_vec());
@@ -418,7 +420,7 @@ fn env_sessions_route_by_session_and_move_when_their_worker_dies() {
         c.session_logs.wait = Duration::from_millis(300);
     });
     let c1 = RawPeer::connect(&broker.frontend);
-    let c2 = RawPeer::connect(&broker.frontend);
+    let c2 = RawPeer::connect(&broker.frontend).with_client(2);
     let map = put_lakeside(&c1);
     let open_msg = |n: u32| {
         Some(

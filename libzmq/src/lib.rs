@@ -15,6 +15,7 @@
 
 mod keys;
 mod monitor;
+pub mod token;
 
 pub use monitor::{HandshakeFailure, HandshakeMonitor};
 

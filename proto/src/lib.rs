@@ -65,6 +65,11 @@ impl ProtoError {
 /// Decodes and checks one frame. The request id is returned even when the body is
 /// refused, where it could be read, so the error reply can carry it.
 pub fn decode(frame: &[u8]) -> Result<(u64, Body), (u64, ProtoError)> {
+    decode_envelope(frame).map(|(rid, _, body)| (rid, body))
+}
+
+/// [`decode`], with the Envelope's `client_token` (empty when the sender gave none).
+pub fn decode_envelope(frame: &[u8]) -> Result<(u64, Vec<u8>, Body), (u64, ProtoError)> {
     if frame.len() > MAX_MESSAGE_BYTES {
         return Err((
             0,
@@ -84,20 +89,32 @@ pub fn decode(frame: &[u8]) -> Result<(u64, Body), (u64, ProtoError)> {
         ));
     }
     match env.body {
-        Some(body) => Ok((env.request_id, body)),
+        Some(body) => Ok((env.request_id, env.client_token, body)),
         None => Err((env.request_id, ProtoError::EmptyBody)),
     }
 }
 
 /// Encodes one message with the current protocol version.
 pub fn encode(request_id: u64, body: Body) -> Vec<u8> {
+    encode_with_token(request_id, Vec::new(), body)
+}
+
+/// [`encode`] with a client token (see `Envelope.client_token`).
+pub fn encode_with_token(request_id: u64, client_token: Vec<u8>, body: Body) -> Vec<u8> {
     Envelope {
         protocol_version: PROTOCOL_VERSION,
         request_id,
+        client_token,
         body: Some(body),
     }
     .encode_to_vec()
 }
+
+/// Bytes of a client token (`Envelope.client_token`): at least this many, so it cannot
+/// be guessed...
+pub const MIN_CLIENT_TOKEN: usize = 16;
+/// ... and at most this many.
+pub const MAX_CLIENT_TOKEN: usize = 64;
 
 /// An [`Error`] message.
 pub fn error(code: ErrorCode, field: impl Into<String>, message: impl Into<String>) -> Error {
@@ -149,6 +166,8 @@ pub fn body_name(body: &Body) -> &'static str {
         Body::JobResultRequest(_) => "job_result_request",
         Body::JobResult(_) => "job_result",
         Body::JobWatch(_) => "job_watch",
+        Body::JobDelete(_) => "job_delete",
+        Body::JobDeleted(_) => "job_deleted",
         Body::StatusRequest(_) => "status_request",
         Body::BrokerStatus(_) => "broker_status",
         Body::Error(_) => "error",
@@ -435,6 +454,7 @@ mod tests {
         let old = Envelope {
             protocol_version: 7,
             request_id: 5,
+            client_token: Vec::new(),
             body: Some(Body::StatusRequest(StatusRequest {})),
         }
         .encode_to_vec();
@@ -445,6 +465,7 @@ mod tests {
         let empty = Envelope {
             protocol_version: PROTOCOL_VERSION,
             request_id: 9,
+            client_token: Vec::new(),
             body: None,
         }
         .encode_to_vec();

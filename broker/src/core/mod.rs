@@ -25,6 +25,26 @@ pub type TaskId = u64;
 pub type SourceId = u64;
 /// A client's ZeroMQ routing identity on the frontend socket.
 pub type ClientKey = Vec<u8>;
+/// Who a client is, for ownership (jobs, env sessions) and per-client bounds: `key:`
+/// and its CURVE public key (Z85) when the broker authenticates clients, so every
+/// connection of one key is one client; else `peer:` and its connection's routing id.
+pub type Principal = String;
+
+/// The [`Principal`] of a client with CURVE user id `user_id` (the ZAP handler sets it
+/// to the key) and routing id `route`.
+pub fn principal(user_id: Option<&str>, route: &[u8]) -> Principal {
+    match user_id {
+        Some(key) if !key.is_empty() => format!("key:{key}"),
+        _ => {
+            let mut s = String::with_capacity(5 + 2 * route.len());
+            s.push_str("peer:");
+            for b in route {
+                s.push_str(&format!("{b:02x}"));
+            }
+            s
+        }
+    }
+}
 
 /// Workers and tasks together: credit-based dispatch and requeueing. `R` is what the
 /// broker keeps of a task's result.

@@ -31,11 +31,12 @@ pub struct LogLimits {
 }
 
 impl Default for LogLimits {
-    /// 64 MiB or a million requests per session (about three hours of one env at
-    /// 100 steps/s with unseeded resets); 5 s for another worker.
+    /// 16 MiB or a million requests per session (about 40 minutes of one env at 100
+    /// steps/s with unseeded resets; a seeded reset compacts the log); 5 s for another
+    /// worker.
     fn default() -> Self {
         Self {
-            max_bytes: 64 << 20,
+            max_bytes: 16 << 20,
             max_entries: 1_000_000,
             wait: Duration::from_secs(5),
         }

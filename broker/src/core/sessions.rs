@@ -22,7 +22,7 @@ use std::time::Duration;
 use paddock_proto::EnvOp;
 
 use super::replay::{LogLimits, Logged, SessionLog};
-use super::{ClientKey, WorkerKey};
+use super::{ClientKey, Principal, WorkerKey};
 
 /// Where a session stands.
 #[derive(Debug, Clone, PartialEq)]
@@ -77,7 +77,12 @@ pub struct Held {
 /// One session.
 #[derive(Debug, Clone)]
 pub struct Session {
+    /// Where its replies go: the routing id of the owner's latest connection.
     pub client: ClientKey,
+    /// Who owns it (see [`super::Principal`]): only requests of this principal reach it.
+    pub owner: Principal,
+    /// When a request of its client last arrived (broker time).
+    pub last_used: Duration,
     pub worker: WorkerKey,
     pub state: SessionState,
     pub log: SessionLog,
@@ -176,20 +181,25 @@ impl Sessions {
         }
     }
 
-    /// Registers session `id` (drawn by the caller, unused) being opened by `client` on
-    /// `worker` with the open request `open` (its payload), sent under `request`.
+    /// Registers session `id` (drawn by the caller, unused) being opened by `client`
+    /// (owned by `owner`) on `worker` with the open request `open` (its payload), sent
+    /// under `request` at `now`.
     pub fn open(
         &mut self,
         id: u64,
-        client: ClientKey,
+        client: (ClientKey, Principal),
         worker: WorkerKey,
         open: Vec<u8>,
         request: u64,
+        now: Duration,
     ) {
+        let (client, owner) = client;
         self.sessions.insert(
             id,
             Session {
                 client,
+                owner,
+                last_used: now,
                 worker,
                 state: SessionState::Opening,
                 log: SessionLog::new(open, self.limits),
@@ -207,9 +217,38 @@ impl Sessions {
         self.sessions.contains_key(&id)
     }
 
-    /// The session `id` if `client` owns it.
-    pub fn get(&self, id: u64, client: &[u8]) -> Option<&Session> {
-        self.sessions.get(&id).filter(|s| s.client == client)
+    /// The session `id` if `owner` owns it.
+    pub fn get(&self, id: u64, owner: &str) -> Option<&Session> {
+        self.sessions.get(&id).filter(|s| s.owner == owner)
+    }
+
+    /// Sessions `owner` holds.
+    pub fn owned_by(&self, owner: &str) -> usize {
+        self.sessions.values().filter(|s| s.owner == owner).count()
+    }
+
+    /// Live sessions no request has reached for `idle` or longer at `now`, with nothing
+    /// on the way to their worker, oldest first.
+    pub fn idle(&self, now: Duration, idle: Duration) -> Vec<u64> {
+        let mut ids: Vec<(Duration, u64)> = self
+            .sessions
+            .iter()
+            .filter(|(_, s)| {
+                s.state == SessionState::Live
+                    && s.pending.is_empty()
+                    && now.saturating_sub(s.last_used) >= idle
+            })
+            .map(|(&id, s)| (s.last_used, id))
+            .collect();
+        ids.sort_unstable();
+        ids.into_iter().map(|(_, id)| id).collect()
+    }
+
+    /// Ends session `id` for good with `reason` (an idle session expired): the session
+    /// and the worker that hosted it, or None when there is no such session.
+    pub fn expire(&mut self, id: u64, reason: String) -> Option<(Lost, WorkerKey)> {
+        let worker = self.sessions.get(&id)?.worker.clone();
+        self.lose(id, reason).map(|l| (l, worker))
     }
 
     /// Session `id`, whoever owns it.
@@ -217,12 +256,21 @@ impl Sessions {
         self.sessions.get(&id)
     }
 
-    /// Where `client`'s request on session `id` goes.
-    pub fn route(&self, id: u64, client: &[u8]) -> Route {
-        match self.get(id, client) {
-            None => Route::Unknown,
-            Some(s) if s.state == SessionState::Live => Route::Send(s.worker.clone()),
-            Some(_) => Route::Hold,
+    /// Where the request of `client` (principal `owner`) on session `id`, arrived at
+    /// `now`, goes. Only the owner reaches a session; an owner that reconnected (the
+    /// same CURVE key, a new routing id) gets the replies on its new connection.
+    pub fn route(&mut self, id: u64, client: &[u8], owner: &str, now: Duration) -> Route {
+        let Some(s) = self.sessions.get_mut(&id).filter(|s| s.owner == owner) else {
+            return Route::Unknown;
+        };
+        s.last_used = now;
+        if s.client != client {
+            s.client = client.to_vec();
+        }
+        if s.state == SessionState::Live {
+            Route::Send(s.worker.clone())
+        } else {
+            Route::Hold
         }
     }
 

@@ -54,16 +54,47 @@ pub(super) fn unpack_outcomes(mut bytes: &[u8]) -> Vec<Vec<u8>> {
     out
 }
 
+/// Who asks about jobs: the client's principal, and whether it is an admin key.
+#[derive(Clone, Copy)]
+pub(super) struct Asker<'a> {
+    pub owner: &'a str,
+    pub admin: bool,
+}
+
+impl Asker<'_> {
+    /// Whether it may see and manage `rec` (jobs stored before jobs had owners are
+    /// everyone's).
+    fn may(&self, rec: &JobRecord) -> bool {
+        self.admin || rec.owner == self.owner || rec.owner.is_empty()
+    }
+}
+
+/// Jobs a listing carries at most (the newest).
+pub(super) const MAX_LISTED_JOBS: usize = 1000;
+
 impl State {
-    pub(super) fn on_job(&mut self, client: ClientKey, rid: u64, body: Body) {
+    pub(super) fn on_job(
+        &mut self,
+        client: ClientKey,
+        owner: &str,
+        admin: bool,
+        rid: u64,
+        body: Body,
+    ) {
+        let who = Asker { owner, admin };
         match body {
-            Body::JobSubmit(s) => self.submit(client, rid, s),
+            Body::JobSubmit(s) => self.submit(client, owner, rid, s),
             Body::JobStatus(r) => {
-                if let Some(rec) = self.job_record(&client, rid, &r.job_id, "job_status.job_id") {
+                if let Some(rec) =
+                    self.job_record(&client, who, rid, &r.job_id, "job_status.job_id")
+                {
                     self.reply(&client, rid, Body::JobInfo(info_of(&rec)));
                 }
             }
-            Body::JobList(_) => match self.store.jobs() {
+            Body::JobList(_) => match self
+                .store
+                .jobs_of((!admin).then_some(owner), MAX_LISTED_JOBS)
+            {
                 Ok(jobs) => {
                     let jobs = jobs
                         .iter()
@@ -80,10 +111,11 @@ impl State {
                     error(ErrorCode::Internal, "job_list", e.to_string()),
                 ),
             },
-            Body::JobCancel(c) => self.cancel(&client, rid, &c.job_id),
+            Body::JobCancel(c) => self.cancel(&client, who, rid, &c.job_id),
+            Body::JobDelete(d) => self.delete(&client, who, rid, &d.job_id),
             Body::JobResultRequest(r) => {
                 if let Some(rec) =
-                    self.job_record(&client, rid, &r.job_id, "job_result_request.job_id")
+                    self.job_record(&client, who, rid, &r.job_id, "job_result_request.job_id")
                 {
                     let outcomes = unpack_outcomes(&rec.result_bin);
                     let reply = JobResult {
@@ -95,7 +127,8 @@ impl State {
                 }
             }
             Body::JobWatch(w) => {
-                if let Some(rec) = self.job_record(&client, rid, &w.job_id, "job_watch.job_id") {
+                if let Some(rec) = self.job_record(&client, who, rid, &w.job_id, "job_watch.job_id")
+                {
                     self.reply(&client, rid, Body::JobInfo(info_of(&rec)));
                     if let Some(j) = self.jobs.get_mut(&w.job_id) {
                         j.watchers.push((client, rid));
@@ -106,19 +139,24 @@ impl State {
         }
     }
 
+    /// Job `id` if `who` may see it; else a NOT_FOUND reply (the same for a job of
+    /// another client as for no job, so ids cannot be probed).
     pub(super) fn job_record(
         &self,
         client: &[u8],
+        who: Asker<'_>,
         rid: u64,
         id: &str,
         field: &str,
     ) -> Option<JobRecord> {
-        if let Some(j) = self.jobs.get(id) {
-            return Some(j.record.clone());
-        }
-        match self.store.job(id) {
-            Ok(Some(r)) => Some(r),
-            Ok(None) => {
+        let found = match self.jobs.get(id) {
+            Some(j) => Ok(Some(j.record.clone())),
+            None => self.store.job(id),
+        };
+        match found {
+            Ok(Some(r)) if who.may(&r) => Some(r),
+            Ok(_) => {
+                let id = crate::server::clip(id, 80);
                 self.refuse(
                     client,
                     rid,
@@ -141,7 +179,56 @@ impl State {
         }
     }
 
-    pub(super) fn submit(&mut self, client: ClientKey, rid: u64, submit: JobSubmit) {
+    /// Refuses a submission over a size bound; true when it is within them.
+    fn submission_fits(&self, client: &[u8], owner: &str, rid: u64, submit: &JobSubmit) -> bool {
+        let l = &self.limits;
+        let refusal = if submit.name.len() > l.max_job_name_bytes {
+            Some(error(
+                ErrorCode::InvalidArgument,
+                "job_submit.name",
+                format!(
+                    "job_submit.name has {} bytes, the limit is {}",
+                    submit.name.len(),
+                    l.max_job_name_bytes
+                ),
+            ))
+        } else if submit.encoded_len() > l.max_job_submit_bytes {
+            Some(error(
+                ErrorCode::TooLarge,
+                "job_submit",
+                format!(
+                    "the job submission has {} bytes, the limit is {}",
+                    submit.encoded_len(),
+                    l.max_job_submit_bytes
+                ),
+            ))
+        } else {
+            match self.store.count_jobs(Some(owner)) {
+                Ok(n) if n >= l.max_jobs_per_client => Some(error(
+                    ErrorCode::Busy,
+                    "job_submit",
+                    format!(
+                        "this client has {n} jobs stored, the limit is {}: delete finished ones (paddock jobs delete)",
+                        l.max_jobs_per_client
+                    ),
+                )),
+                Ok(_) => None,
+                Err(e) => Some(error(ErrorCode::Internal, "job_submit", e.to_string())),
+            }
+        };
+        match refusal {
+            Some(e) => {
+                self.refuse(client, rid, e);
+                false
+            }
+            None => true,
+        }
+    }
+
+    pub(super) fn submit(&mut self, client: ClientKey, owner: &str, rid: u64, submit: JobSubmit) {
+        if !self.submission_fits(&client, owner, rid, &submit) {
+            return;
+        }
         let active = self.jobs.len();
         if active >= self.limits.max_jobs {
             return self.refuse(
@@ -174,6 +261,7 @@ impl State {
             rounds_total,
             created_at: now,
             updated_at: now,
+            owner: owner.to_string(),
             ..Default::default()
         };
         if let Err(e) = self.store.insert_job(&mut record) {
@@ -203,27 +291,61 @@ impl State {
         });
     }
 
-    pub(super) fn cancel(&mut self, client: &[u8], rid: u64, id: &str) {
-        let Some(mut rec) = self.job_record(client, rid, id, "job_cancel.job_id") else {
+    /// Deletes a job (cancelling it first when it is queued or running).
+    pub(super) fn delete(&mut self, client: &[u8], who: Asker<'_>, rid: u64, id: &str) {
+        if self
+            .job_record(client, who, rid, id, "job_delete.job_id")
+            .is_none()
+        {
+            return;
+        }
+        self.stop_job(id);
+        match self.store.delete_job(id) {
+            Ok(_) => {
+                tracing::info!(job_id = id, "job deleted");
+                let done = paddock_proto::JobDeleted {
+                    job_id: id.to_string(),
+                };
+                self.reply(client, rid, Body::JobDeleted(done));
+            }
+            Err(e) => self.refuse(
+                client,
+                rid,
+                error(ErrorCode::Internal, "job_delete.job_id", e.to_string()),
+            ),
+        }
+    }
+
+    /// Cancels job `id` if it is queued or running: its round dropped, its row stored
+    /// as cancelled, its watchers told. The cancelled record, or None when it was not
+    /// active.
+    fn stop_job(&mut self, id: &str) -> Option<JobRecord> {
+        let j = self.jobs.remove(id)?;
+        if j.in_round {
+            self.emit(Event::Cancel {
+                job_id: id.to_string(),
+            });
+        }
+        let mut rec = j.record;
+        rec.state = job_state(JobState::CancelledJob);
+        rec.updated_at = unix_now();
+        if let Err(e) = self.store.update_job(&rec) {
+            tracing::error!(job_id = id, error = %e, "storing a cancelled job failed");
+        }
+        tracing::info!(job_id = id, "job cancelled");
+        for (c, w) in j.watchers {
+            self.reply(&c, w, Body::JobInfo(info_of(&rec)));
+        }
+        self.active_changed();
+        Some(rec)
+    }
+
+    pub(super) fn cancel(&mut self, client: &[u8], who: Asker<'_>, rid: u64, id: &str) {
+        let Some(mut rec) = self.job_record(client, who, rid, id, "job_cancel.job_id") else {
             return;
         };
-        if let Some(j) = self.jobs.remove(id) {
-            if j.in_round {
-                self.emit(Event::Cancel {
-                    job_id: id.to_string(),
-                });
-            }
-            rec = j.record;
-            rec.state = job_state(JobState::CancelledJob);
-            rec.updated_at = unix_now();
-            if let Err(e) = self.store.update_job(&rec) {
-                tracing::error!(job_id = id, error = %e, "storing a cancelled job failed");
-            }
-            tracing::info!(job_id = id, "job cancelled");
-            for (c, w) in j.watchers {
-                self.reply(&c, w, Body::JobInfo(info_of(&rec)));
-            }
-            self.active_changed();
+        if let Some(stopped) = self.stop_job(id) {
+            rec = stopped;
         }
         self.reply(client, rid, Body::JobInfo(info_of(&rec)));
     }
@@ -291,6 +413,7 @@ impl State {
                     if j.record.state == job_state(JobState::Queued) {
                         j.record.state = job_state(JobState::Running);
                     }
+                    let budgets = scenarios.iter().map(|s| self.planner.budget(s)).collect();
                     let scenarios = scenarios
                         .into_iter()
                         .map(|s| (paddock_proto::blob_hash(&s), s))
@@ -298,6 +421,7 @@ impl State {
                     self.emit(Event::Queue {
                         owner: Owner::Job { job_id: id },
                         scenarios,
+                        budgets,
                         tasks,
                     });
                 }

@@ -43,6 +43,62 @@ pub struct BrokerConfig {
     /// Maps stored at start and listed by name in the status (the shipped maps), so
     /// clients name them without uploading them.
     pub maps: Vec<paddock_proto::MapBundle>,
+    /// What one client, and all of them together, may make the broker hold.
+    pub bounds: Bounds,
+}
+
+/// The broker's bounds beyond the task queues ([`Limits`]), the replay logs
+/// ([`LogLimits`]) and the scenario store ([`BlobLimits`]); docs/security.md has the
+/// whole table with the `paddock serve` flag of each.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bounds {
+    /// Env sessions one client (principal) may hold at once.
+    pub sessions_per_client: usize,
+    /// Env sessions in the whole broker.
+    pub sessions_total: usize,
+    /// An env session without a request for this long is closed; zero: never.
+    pub session_idle: Duration,
+    /// Ended sessions whose reason is kept for their owner's next request.
+    pub max_lost_sessions: usize,
+    /// A task's deadline: this much, plus [`Bounds::task_time_per_sim_s`] for every
+    /// simulated second the scenario allows.
+    pub task_time_base: Duration,
+    /// Wall-clock seconds a worker may take per simulated second of an episode.
+    pub task_time_per_sim_s: f64,
+    /// Deadline of a task whose scenario the planner cannot read (a routing-only broker).
+    pub task_time_unknown: Duration,
+    /// Bytes of a job's name.
+    pub max_job_name_bytes: usize,
+    /// Bytes of an encoded job submission.
+    pub max_job_submit_bytes: usize,
+    /// Jobs one client may have stored (finished ones count until deleted).
+    pub max_jobs_per_client: usize,
+    /// Bytes of maps and model files clients may store (`PutMap`, `PutBlob`).
+    pub max_store_bytes: u64,
+    /// Characters of a client's input quoted in a log line.
+    pub log_field_chars: usize,
+    /// Refusals logged per second (the rest counted, the count logged later).
+    pub refusal_log_rate: u32,
+}
+
+impl Default for Bounds {
+    fn default() -> Self {
+        Self {
+            sessions_per_client: 64,
+            sessions_total: 256,
+            session_idle: Duration::from_secs(600),
+            max_lost_sessions: 4096,
+            task_time_base: Duration::from_secs(60),
+            task_time_per_sim_s: 1.0,
+            task_time_unknown: Duration::from_secs(600),
+            max_job_name_bytes: 256,
+            max_job_submit_bytes: 16 << 20,
+            max_jobs_per_client: 1000,
+            max_store_bytes: 4 << 30,
+            log_field_chars: super::guard::DEFAULT_LOG_FIELD_CHARS,
+            refusal_log_rate: super::guard::DEFAULT_REFUSAL_LOG_RATE,
+        }
+    }
 }
 
 /// A broker open to the network: its key pair and, per endpoint, the directory of
@@ -53,6 +109,8 @@ pub struct Security {
     pub keys: paddock_libzmq::KeyPair,
     pub client_keys: PathBuf,
     pub worker_keys: PathBuf,
+    /// Client public keys (Z85) that see and manage every client's jobs.
+    pub admin_keys: Vec<String>,
 }
 
 /// The default [`BrokerConfig::spin`].
@@ -76,6 +134,7 @@ impl BrokerConfig {
             local_backend: None,
             spin: DEFAULT_SPIN,
             maps: Vec::new(),
+            bounds: Bounds::default(),
         }
     }
 }

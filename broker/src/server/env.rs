@@ -12,7 +12,7 @@
 use paddock_proto::{Body, EnvOp, EnvReply, EnvRequest, ErrorCode, error};
 
 use super::{Broker, Side, hex};
-use crate::core::{Held, Logged, Lost, Pending, Reply, ReplyHead, Route, Sent};
+use crate::core::{Held, Logged, Lost, Pending, Principal, Reply, ReplyHead, Route, Sent};
 
 const OPEN: i32 = EnvOp::EnvOpen as i32;
 const RESET: i32 = EnvOp::EnvReset as i32;
@@ -42,13 +42,14 @@ impl Broker {
     pub(super) fn on_env_request(
         &mut self,
         client: Vec<u8>,
+        who: Principal,
         rid: u64,
         req: EnvRequest,
         payload: Option<zmq::Message>,
     ) {
         match req.op {
-            OPEN => self.on_env_open(client, rid, payload),
-            RESET | STEP | RENDER | CLOSE => self.route_env(client, rid, req, payload),
+            OPEN => self.on_env_open(client, who, rid, payload),
+            RESET | STEP | RENDER | CLOSE => self.route_env(client, &who, rid, req, payload),
             op => self.refuse(
                 Side::Client,
                 &client,
@@ -62,7 +63,35 @@ impl Broker {
         }
     }
 
-    fn on_env_open(&mut self, client: Vec<u8>, rid: u64, payload: Option<zmq::Message>) {
+    fn on_env_open(
+        &mut self,
+        client: Vec<u8>,
+        who: Principal,
+        rid: u64,
+        payload: Option<zmq::Message>,
+    ) {
+        let b = &self.cfg.bounds;
+        let (mine, all) = (self.sessions.owned_by(&who), self.sessions.len());
+        let over = if mine >= b.sessions_per_client {
+            Some(format!(
+                "this client holds {mine} env sessions, the limit per client is {} (--sessions-per-client): close one first",
+                b.sessions_per_client
+            ))
+        } else if all >= b.sessions_total {
+            Some(format!(
+                "the broker holds {all} env sessions, its limit (--sessions-total); retry later",
+            ))
+        } else {
+            None
+        };
+        if let Some(why) = over {
+            return self.refuse(
+                Side::Client,
+                &client,
+                rid,
+                error(ErrorCode::Busy, "env_request", why),
+            );
+        }
         let Some(worker) = self.disp.workers.pick_for_session() else {
             return self.refuse(
                 Side::Client,
@@ -79,8 +108,15 @@ impl Broker {
         let lost = &self.lost_sessions;
         let sid = draw_session_id(|id| sessions.contains(id) || lost.contains_key(&id));
         let payload = payload.unwrap_or_else(zmq::Message::new);
-        self.sessions
-            .open(sid, client, worker.clone(), payload.to_vec(), rid);
+        let now = self.now();
+        self.sessions.open(
+            sid,
+            (client, who),
+            worker.clone(),
+            payload.to_vec(),
+            rid,
+            now,
+        );
         if let Some(w) = self.disp.workers.get_mut(&worker) {
             w.sessions += 1;
         }
@@ -115,12 +151,14 @@ impl Broker {
     fn route_env(
         &mut self,
         client: Vec<u8>,
+        who: &str,
         rid: u64,
         req: EnvRequest,
         payload: Option<zmq::Message>,
     ) {
         let sid = req.session_id;
-        match self.sessions.route(sid, &client) {
+        let now = self.now();
+        match self.sessions.route(sid, &client, who, now) {
             Route::Send(worker) => {
                 let sent = match req.op {
                     RESET | STEP => Sent::Change(Logged {
@@ -217,15 +255,18 @@ impl Broker {
                     held_requests = held.len(),
                     "env session rebuilt on another worker by replay"
                 );
-                let client = self.sessions.session(sid).map(|s| s.client.clone());
-                if let Some(client) = client {
+                let owner = self
+                    .sessions
+                    .session(sid)
+                    .map(|s| (s.client.clone(), s.owner.clone()));
+                if let Some((client, who)) = owner {
                     for h in held {
                         let payload = (h.op != CLOSE).then(|| zmq::Message::from(h.payload));
                         let req = EnvRequest {
                             session_id: sid,
                             op: h.op,
                         };
-                        self.route_env(client.clone(), h.client_request, req, payload);
+                        self.route_env(client.clone(), &who, h.client_request, req, payload);
                     }
                 }
             }
@@ -255,7 +296,7 @@ impl Broker {
             reason = %lost.reason,
             "env session lost"
         );
-        self.lost_sessions.insert(lost.session, lost.reason.clone());
+        self.remember_lost(lost.session, lost.reason.clone());
         for rid in lost.requests {
             let e = error(
                 ErrorCode::Internal,

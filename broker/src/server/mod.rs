@@ -22,17 +22,20 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use paddock_libzmq::{Authenticator, Curve};
-use paddock_proto::{Body, ErrorCode, code_name, error};
+use paddock_proto::{Body, ErrorCode, error};
 
 mod config;
 mod env;
+mod guard;
+mod io;
 mod office;
 mod tasks;
 mod workers;
 
-pub use config::{BrokerConfig, BrokerError, DEFAULT_SPIN, Security};
+pub use config::{Bounds, BrokerConfig, BrokerError, DEFAULT_SPIN, Security};
+pub use guard::clip;
 
-use crate::core::{Blobs, ClientKey, Dispatcher, Sessions, SourceId, WorkerKey};
+use crate::core::{Blobs, ClientKey, Dispatcher, Principal, Sessions, SourceId, WorkerKey};
 use crate::office::{Command, Event, Office, OfficeLimits};
 use crate::plan::Planner;
 use crate::state::Store;
@@ -45,6 +48,7 @@ type Outcome = zmq::Message;
 type WaitingRound = (
     String,
     Vec<(String, Vec<u8>)>,
+    Vec<Duration>,
     Vec<paddock_proto::RolloutTaskSpec>,
 );
 
@@ -55,11 +59,15 @@ struct SourceOwner {
     tasks: Vec<(u32, u64, u32)>,
     /// The distinct scenario hashes the source holds a reference on.
     hashes: Vec<String>,
+    /// How long a task of each scenario (by index into `hashes`) may take on a worker.
+    deadlines: Vec<Duration>,
 }
 
 enum OwnerKind {
     Batch {
         client: ClientKey,
+        /// Whose batch it is (per-client bounds).
+        who: Principal,
         request_id: u64,
         progress: bool,
         last_progress: Instant,
@@ -108,6 +116,14 @@ pub struct Broker {
     /// Sessions lost for good (with their worker, or a failed replay): why, for a
     /// helpful error.
     lost_sessions: HashMap<u64, String>,
+    /// `lost_sessions` oldest first (bounded by `Bounds::max_lost_sessions`).
+    lost_order: VecDeque<u64>,
+    /// Deadlines of the tasks handed to workers.
+    deadlines: guard::Deadlines,
+    /// The refusal log's rate limit.
+    log_budget: guard::LogBudget,
+    /// When the guards (deadlines, idle sessions, batch keep-alives) last ran.
+    guarded_at: Duration,
     sources: HashMap<SourceId, SourceOwner>,
     /// Source of each job's round in flight.
     job_sources: HashMap<String, SourceId>,
@@ -134,6 +150,7 @@ fn router(
     what: &'static str,
     curve: &Curve,
     max_message_bytes: usize,
+    clients: bool,
 ) -> Result<(zmq::Socket, String), BrokerError> {
     let s = ctx
         .socket(zmq::ROUTER)
@@ -145,6 +162,17 @@ fn router(
     // refuse oversized frames at the socket, before they are read into memory
     s.set_maxmsgsize(i64::try_from(max_message_bytes).unwrap_or(i64::MAX))
         .map_err(socket_err(what, endpoint))?;
+    if clients {
+        // a send to a client that has gone fails (EHOSTUNREACH) instead of vanishing:
+        // that is how a batch whose client left is noticed and cancelled
+        s.set_router_mandatory(true)
+            .map_err(socket_err(what, endpoint))?;
+        // ZMTP heartbeats close connections whose peer vanished without a FIN
+        s.set_heartbeat_ivl(5_000)
+            .map_err(socket_err(what, endpoint))?;
+        s.set_heartbeat_timeout(15_000)
+            .map_err(socket_err(what, endpoint))?;
+    }
     s.bind(endpoint).map_err(socket_err(what, endpoint))?;
     let bound = s
         .get_last_endpoint()
@@ -188,10 +216,22 @@ impl Broker {
             }
         };
         let max = cfg.max_message_bytes;
-        let (front, frontend_endpoint) =
-            router(&ctx, &cfg.frontend, "client endpoint", &front_curve, max)?;
-        let (back, backend_endpoint) =
-            router(&ctx, &cfg.backend, "worker endpoint", &back_curve, max)?;
+        let (front, frontend_endpoint) = router(
+            &ctx,
+            &cfg.frontend,
+            "client endpoint",
+            &front_curve,
+            max,
+            true,
+        )?;
+        let (back, backend_endpoint) = router(
+            &ctx,
+            &cfg.backend,
+            "worker endpoint",
+            &back_curve,
+            max,
+            false,
+        )?;
         if let Some(local) = &cfg.local_backend {
             back.bind(local)
                 .map_err(socket_err("local worker endpoint", local))?;
@@ -213,6 +253,11 @@ impl Broker {
         let limits = OfficeLimits {
             max_jobs: cfg.max_jobs,
             max_round_tasks: cfg.limits.max_tasks_per_client.min(cfg.limits.max_tasks),
+            max_message_bytes: cfg.max_message_bytes,
+            max_job_name_bytes: cfg.bounds.max_job_name_bytes,
+            max_job_submit_bytes: cfg.bounds.max_job_submit_bytes,
+            max_jobs_per_client: cfg.bounds.max_jobs_per_client,
+            max_store_bytes: cfg.bounds.max_store_bytes,
         };
         let office = Office::start(
             Box::new(planner),
@@ -248,6 +293,10 @@ impl Broker {
             spin_until: None,
             sessions: Sessions::new(session_logs),
             lost_sessions: HashMap::new(),
+            lost_order: VecDeque::new(),
+            deadlines: guard::Deadlines::default(),
+            log_budget: guard::LogBudget::default(),
+            guarded_at: Duration::ZERO,
             sources: HashMap::new(),
             job_sources: HashMap::new(),
             waiting_rounds: VecDeque::new(),
@@ -386,71 +435,6 @@ impl Broker {
         }
     }
 
-    // ------------------------------------------------------------------ sending
-
-    /// Sends `[peer, frames...]`, the frames moved into the socket (no copy).
-    fn send_frames(&mut self, side: Side, peer: &[u8], frames: Vec<zmq::Message>) {
-        let socket = match side {
-            Side::Client => &self.front,
-            Side::Worker => &self.back,
-        };
-        let n = frames.len();
-        let mut result = socket.send(peer, zmq::SNDMORE | zmq::DONTWAIT);
-        for (i, f) in frames.into_iter().enumerate() {
-            if result.is_err() {
-                break;
-            }
-            let flags = if i + 1 < n {
-                zmq::SNDMORE | zmq::DONTWAIT
-            } else {
-                zmq::DONTWAIT
-            };
-            result = socket.send(f, flags);
-        }
-        if let Err(e) = result {
-            tracing::warn!(?side, error = %e, "send failed; message dropped");
-        }
-        if side == Side::Worker {
-            let now = self.now();
-            self.disp.workers.sent(peer, now);
-        }
-    }
-
-    fn send(&mut self, side: Side, peer: &[u8], request_id: u64, body: Body) {
-        self.send_with(side, peer, request_id, body, Vec::new());
-    }
-
-    /// Sends an Envelope and its payload frames.
-    fn send_with(
-        &mut self,
-        side: Side,
-        peer: &[u8],
-        request_id: u64,
-        body: Body,
-        payload: Vec<zmq::Message>,
-    ) {
-        let mut frames = Vec::with_capacity(1 + payload.len());
-        frames.push(zmq::Message::from(paddock_proto::encode(request_id, body)));
-        frames.extend(payload);
-        self.send_frames(side, peer, frames);
-    }
-
-    /// Sends an error reply, counting and logging it.
-    fn refuse(&mut self, side: Side, peer: &[u8], request_id: u64, e: paddock_proto::Error) {
-        let code = code_name(e.code);
-        *self.stats.errors.entry(code.to_string()).or_default() += 1;
-        tracing::warn!(
-            ?side,
-            peer = %hex(peer),
-            request_id,
-            code,
-            field = %e.field,
-            message = %e.message,
-            "request refused"
-        );
-        self.send(side, peer, request_id, Body::Error(e));
-    }
-
     // ------------------------------------------------------------------ receiving
 
     fn on_frames(&mut self, side: Side, mut parts: Vec<zmq::Message>) {
@@ -463,7 +447,7 @@ impl Broker {
             self.disp.workers.seen(&peer, now);
         }
         let mut payload = parts.split_off(1);
-        let Some(header) = parts.pop() else {
+        let Some(mut header) = parts.pop() else {
             return;
         };
         if header.len() > self.cfg.max_message_bytes {
@@ -474,7 +458,7 @@ impl Broker {
             self.refuse(side, &peer, 0, e.to_error());
             return;
         }
-        let (rid, body) = match paddock_proto::decode(&header) {
+        let (rid, token, body) = match paddock_proto::decode_envelope(&header) {
             Ok(x) => x,
             Err((rid, e)) => return self.refuse(side, &peer, rid, e.to_error()),
         };
@@ -496,7 +480,13 @@ impl Broker {
             );
         }
         match side {
-            Side::Client => self.on_client(peer, rid, body, &mut payload),
+            Side::Client => {
+                let who = match io::principal_of(header.gets("User-Id"), &peer, &token) {
+                    Ok(who) => who,
+                    Err(e) => return self.refuse(side, &peer, rid, e),
+                };
+                self.on_client(peer, who, rid, body, &mut payload)
+            }
             Side::Worker => self.on_worker(peer, rid, body, &mut payload),
         }
     }
@@ -522,17 +512,18 @@ impl Broker {
     fn on_client(
         &mut self,
         client: ClientKey,
+        who: Principal,
         rid: u64,
         body: Body,
         payload: &mut Vec<zmq::Message>,
     ) {
         match body {
-            Body::RolloutBatch(b) => self.on_batch(client, rid, b),
+            Body::RolloutBatch(b) => self.on_batch(client, who, rid, b),
             Body::StatusRequest(_) => {
                 let status = self.status();
                 self.send(Side::Client, &client, rid, Body::BrokerStatus(status));
             }
-            Body::EnvRequest(r) => self.on_env_request(client, rid, r, payload.pop()),
+            Body::EnvRequest(r) => self.on_env_request(client, who, rid, r, payload.pop()),
             Body::PutMap(p) => self.tell_office(Command::PutMap {
                 client,
                 rid,
@@ -548,7 +539,17 @@ impl Broker {
             | Body::JobList(_)
             | Body::JobCancel(_)
             | Body::JobResultRequest(_)
-            | Body::JobWatch(_)) => self.tell_office(Command::Job { client, rid, body }),
+            | Body::JobWatch(_)
+            | Body::JobDelete(_)) => {
+                let admin = self.is_admin(&who);
+                self.tell_office(Command::Job {
+                    client,
+                    owner: who,
+                    admin,
+                    rid,
+                    body: Box::new(body),
+                })
+            }
             other => self.wrong_socket(Side::Client, &client, rid, &other),
         }
     }

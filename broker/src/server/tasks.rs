@@ -12,7 +12,7 @@ use paddock_proto::{
 use prost::Message;
 
 use super::{Broker, OwnerKind, Side, SourceOwner, hex};
-use crate::core::{Assigned, ClientKey, Completion, SourceId};
+use crate::core::{Assigned, ClientKey, Completion, Principal, SourceId};
 use crate::office::Command;
 
 impl Broker {
@@ -58,6 +58,13 @@ impl Broker {
             seed,
             record_decimation,
         };
+        let time = owner
+            .deadlines
+            .get(scenario as usize)
+            .copied()
+            .unwrap_or(self.cfg.bounds.task_time_unknown);
+        let due = self.now() + time;
+        self.deadlines.push(due, a.task, worker.to_vec());
         self.send(Side::Worker, worker, a.task, Body::TaskAssign(msg));
     }
 
@@ -93,6 +100,7 @@ impl Broker {
                     request_id,
                     progress: true,
                     last_progress,
+                    ..
                 },
             ..
         }) = self.sources.get_mut(&source)
@@ -149,6 +157,7 @@ impl Broker {
     pub(super) fn on_batch(
         &mut self,
         client: ClientKey,
+        who: Principal,
         rid: u64,
         batch: paddock_proto::RolloutBatch,
     ) {
@@ -172,7 +181,12 @@ impl Broker {
                 ),
             );
         }
-        self.tell_office(Command::CheckBatch { client, rid, batch });
+        self.tell_office(Command::CheckBatch {
+            client,
+            who,
+            rid,
+            batch,
+        });
     }
 
     /// Queues a checked batch or a job round: its tasks in the scheduler, its scenarios
@@ -181,10 +195,13 @@ impl Broker {
         &mut self,
         kind: OwnerKind,
         scenarios: Vec<(String, Vec<u8>)>,
+        deadlines: Vec<Duration>,
         tasks: &[RolloutTaskSpec],
     ) -> Result<SourceId, String> {
+        // per-client bounds count by principal: every connection of one CURVE key (or
+        // client token) is one client
         let key = match &kind {
-            OwnerKind::Batch { client, .. } => client.clone(),
+            OwnerKind::Batch { who, .. } => who.clone().into_bytes(),
             OwnerKind::Job { job_id } => format!("job:{job_id}").into_bytes(),
         };
         let hashes: Vec<String> = scenarios.iter().map(|(h, _)| h.clone()).collect();
@@ -212,6 +229,7 @@ impl Broker {
                     .map(|t| (t.scenario, t.seed, t.record_decimation))
                     .collect(),
                 hashes,
+                deadlines,
             },
         );
         // an empty batch is finished already
@@ -237,10 +255,11 @@ impl Broker {
     /// Job rounds that found no room in the queues, tried again.
     pub(super) fn queue_waiting_rounds(&mut self) {
         for _ in 0..self.waiting_rounds.len() {
-            let Some((job_id, scenarios, tasks)) = self.waiting_rounds.pop_front() else {
+            let Some((job_id, scenarios, deadlines, tasks)) = self.waiting_rounds.pop_front()
+            else {
                 break;
             };
-            self.queue_round(job_id, scenarios, tasks);
+            self.queue_round(job_id, scenarios, deadlines, tasks);
         }
     }
 
@@ -249,18 +268,21 @@ impl Broker {
         &mut self,
         job_id: String,
         scenarios: Vec<(String, Vec<u8>)>,
+        deadlines: Vec<Duration>,
         tasks: Vec<RolloutTaskSpec>,
     ) {
         let kind = OwnerKind::Job {
             job_id: job_id.clone(),
         };
-        match self.queue(kind, scenarios.clone(), &tasks) {
+        match self.queue(kind, scenarios.clone(), deadlines.clone(), &tasks) {
             Ok(source) => {
                 if self.sources.contains_key(&source) {
                     self.job_sources.insert(job_id, source);
                 }
             }
-            Err(_) => self.waiting_rounds.push_back((job_id, scenarios, tasks)),
+            Err(_) => self
+                .waiting_rounds
+                .push_back((job_id, scenarios, deadlines, tasks)),
         }
     }
 }

@@ -126,6 +126,13 @@ impl Broker {
             self.worker_gone(key, Vec::new(), "died");
         }
         self.fail_exhausted(requeued.exhausted);
+        // the guards scan tables: four times a second is often enough
+        if now.saturating_sub(self.guarded_at) >= Duration::from_millis(250) {
+            self.guarded_at = now;
+            self.enforce_deadlines();
+            self.expire_idle_sessions();
+            self.keep_batches_alive();
+        }
         self.resume_sessions();
         for key in tick.heartbeat {
             let in_flight = self

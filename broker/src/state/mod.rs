@@ -52,6 +52,9 @@ pub struct JobRecord {
     pub progress_json: String,
     pub created_at: f64,
     pub updated_at: f64,
+    /// Who submitted it (a broker principal: `key:...`, `token:...` or `peer:...`);
+    /// empty for jobs stored before jobs had owners.
+    pub owner: String,
 }
 
 /// Seconds since the Unix epoch.
@@ -97,7 +100,18 @@ CREATE TABLE IF NOT EXISTS maps (
 ";
 
 const JOB_COLUMNS: &str = "id, name, kind, state, spec, job_state, result_json, result_bin, \
-     error, rounds_done, rounds_total, episodes_done, progress_json, created_at, updated_at";
+     error, rounds_done, rounds_total, episodes_done, progress_json, created_at, updated_at, owner";
+
+/// A fresh job id: `job-` and 128 random bits in hex, so a job cannot be found by
+/// counting (the id is what a client without a CURVE key or client token holds).
+fn draw_job_id() -> Result<String, std::io::Error> {
+    let mut b = [0u8; 16];
+    getrandom::fill(&mut b).map_err(std::io::Error::other)?;
+    Ok(format!(
+        "job-{}",
+        b.iter().map(|x| format!("{x:02x}")).collect::<String>()
+    ))
+}
 
 impl Store {
     /// Opens (creating if needed) the store in `dir`.
@@ -116,6 +130,15 @@ impl Store {
         db.execute_batch("PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL;")
             .map_err(db_err)?;
         db.execute_batch(SCHEMA).map_err(db_err)?;
+        // a store written before jobs had owners: its jobs get an empty owner
+        let has_owner: bool = db
+            .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'owner'")
+            .and_then(|mut st| st.exists([]))
+            .map_err(db_err)?;
+        if !has_owner {
+            db.execute_batch("ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT ''")
+                .map_err(db_err)?;
+        }
         Ok(Self {
             dir: dir.to_path_buf(),
             db_path,
@@ -134,18 +157,15 @@ impl Store {
         &self.dir
     }
 
-    /// Creates a job row; its id is assigned here ("job-N").
+    /// Creates a job row; its id is drawn here (see [`draw_job_id`]).
     pub fn insert_job(&self, job: &mut JobRecord) -> Result<(), StoreError> {
-        let next: i64 = self
-            .db
-            .query_row("SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs", [], |r| {
-                r.get(0)
-            })
-            .map_err(|e| self.db_err(e))?;
-        job.id = format!("job-{next}");
+        job.id = draw_job_id().map_err(|source| StoreError::Io {
+            path: self.dir.clone(),
+            source,
+        })?;
         self.db
             .execute(
-                &format!("INSERT INTO jobs ({JOB_COLUMNS}) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)"),
+                &format!("INSERT INTO jobs ({JOB_COLUMNS}) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)"),
                 params![
                     job.id,
                     job.name,
@@ -161,11 +181,54 @@ impl Store {
                     job.episodes_done as i64,
                     job.progress_json,
                     job.created_at,
-                    job.updated_at
+                    job.updated_at,
+                    job.owner
                 ],
             )
             .map_err(|e| self.db_err(e))?;
         Ok(())
+    }
+
+    /// Deletes a job row; false when there was none.
+    pub fn delete_job(&self, id: &str) -> Result<bool, StoreError> {
+        let n = self
+            .db
+            .execute("DELETE FROM jobs WHERE id = ?1", [id])
+            .map_err(|e| self.db_err(e))?;
+        Ok(n > 0)
+    }
+
+    /// Jobs `owner` has stored (`None`: everyone's).
+    pub fn count_jobs(&self, owner: Option<&str>) -> Result<usize, StoreError> {
+        let n: i64 = match owner {
+            Some(o) => self
+                .db
+                .query_row("SELECT COUNT(*) FROM jobs WHERE owner = ?1", [o], |r| {
+                    r.get(0)
+                }),
+            None => self
+                .db
+                .query_row("SELECT COUNT(*) FROM jobs", [], |r| r.get(0)),
+        }
+        .map_err(|e| self.db_err(e))?;
+        Ok(n as usize)
+    }
+
+    /// The newest `limit` jobs `owner` may see (its own and those stored before jobs had
+    /// owners; `None`: every job), oldest first.
+    pub fn jobs_of(&self, owner: Option<&str>, limit: usize) -> Result<Vec<JobRecord>, StoreError> {
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let sql = format!(
+            "SELECT * FROM (SELECT seq, {JOB_COLUMNS} FROM jobs WHERE ?1 IS NULL OR owner = ?1 OR owner = '' \
+             ORDER BY seq DESC LIMIT ?2) ORDER BY seq"
+        );
+        let mut st = self.db.prepare(&sql).map_err(|e| self.db_err(e))?;
+        let rows = st
+            .query_map(params![owner, limit], |r| Self::row_at(r, 1))
+            .map_err(|e| self.db_err(e))?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| self.db_err(e))?;
+        Ok(rows)
     }
 
     /// Rewrites a job row (after a round, or when it ends).
@@ -198,22 +261,28 @@ impl Store {
     }
 
     fn row(r: &rusqlite::Row<'_>) -> rusqlite::Result<JobRecord> {
+        Self::row_at(r, 0)
+    }
+
+    /// A job from the row's columns `at..` (in [`JOB_COLUMNS`] order).
+    fn row_at(r: &rusqlite::Row<'_>, at: usize) -> rusqlite::Result<JobRecord> {
         Ok(JobRecord {
-            id: r.get(0)?,
-            name: r.get(1)?,
-            kind: r.get(2)?,
-            state: r.get(3)?,
-            spec: r.get(4)?,
-            job_state: r.get(5)?,
-            result_json: r.get(6)?,
-            result_bin: r.get(7)?,
-            error: r.get(8)?,
-            rounds_done: r.get(9)?,
-            rounds_total: r.get(10)?,
-            episodes_done: r.get::<_, i64>(11)? as u64,
-            progress_json: r.get(12)?,
-            created_at: r.get(13)?,
-            updated_at: r.get(14)?,
+            id: r.get(at)?,
+            name: r.get(at + 1)?,
+            kind: r.get(at + 2)?,
+            state: r.get(at + 3)?,
+            spec: r.get(at + 4)?,
+            job_state: r.get(at + 5)?,
+            result_json: r.get(at + 6)?,
+            result_bin: r.get(at + 7)?,
+            error: r.get(at + 8)?,
+            rounds_done: r.get(at + 9)?,
+            rounds_total: r.get(at + 10)?,
+            episodes_done: r.get::<_, i64>(at + 11)? as u64,
+            progress_json: r.get(at + 12)?,
+            created_at: r.get(at + 13)?,
+            updated_at: r.get(at + 14)?,
+            owner: r.get(at + 15)?,
         })
     }
 
@@ -326,6 +395,29 @@ impl Store {
         self.dir.join("blobs").join(hash)
     }
 
+    /// Bytes of the maps and blobs stored on disk.
+    pub fn stored_bytes(&self) -> u64 {
+        fn walk(dir: &Path) -> u64 {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                return 0;
+            };
+            entries
+                .flatten()
+                .map(|e| match e.file_type() {
+                    Ok(t) if t.is_dir() => walk(&e.path()),
+                    Ok(t) if t.is_file() => e.metadata().map_or(0, |m| m.len()),
+                    _ => 0,
+                })
+                .sum()
+        }
+        walk(&self.dir.join("maps")) + walk(&self.dir.join("blobs"))
+    }
+
+    /// Whether a blob with this hash is stored.
+    pub fn has_blob(&self, hash: &str) -> bool {
+        self.blob_path(hash).is_file()
+    }
+
     /// Stores bytes under their hash (idempotent); returns the hash.
     pub fn put_blob(&self, data: &[u8]) -> Result<String, StoreError> {
         let hash = paddock_proto::blob_hash(data);
@@ -432,10 +524,24 @@ mod tests {
         assert_eq!(jobs[0], a);
         assert_eq!(jobs[1].id, b.id);
         assert_ne!(a.id, b.id);
-        let mut c = JobRecord::default();
+        let mut c = JobRecord {
+            owner: "key:A".into(),
+            ..Default::default()
+        };
         s.insert_job(&mut c).unwrap();
-        assert_eq!(c.id, "job-3");
+        // ids are 128 random bits, not a count
+        assert!(c.id.starts_with("job-") && c.id.len() == 36, "{}", c.id);
+        assert!(![&a.id, &b.id].contains(&&c.id));
         assert!(s.job("job-99").unwrap().is_none());
+        // owners: key:A sees its job and the unowned ones; key:B only the unowned
+        assert_eq!(s.jobs_of(Some("key:A"), 10).unwrap().len(), 3);
+        assert_eq!(s.jobs_of(Some("key:B"), 10).unwrap().len(), 2);
+        assert_eq!(s.jobs_of(None, 2).unwrap().len(), 2, "the newest two");
+        assert_eq!(s.jobs_of(None, 2).unwrap()[1].id, c.id);
+        assert_eq!(s.count_jobs(Some("key:A")).unwrap(), 1);
+        assert!(s.delete_job(&c.id).unwrap());
+        assert!(!s.delete_job(&c.id).unwrap());
+        assert_eq!(s.count_jobs(None).unwrap(), 2);
         let ghost = JobRecord {
             id: "job-99".into(),
             ..Default::default()

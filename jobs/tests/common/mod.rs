@@ -13,7 +13,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use paddock_broker::{Broker, BrokerConfig};
-use paddock_proto::{Body, MapRef, encode};
+use paddock_proto::{Body, MapRef, encode_with_token};
 use prost::Message;
 
 pub struct TestBroker {
@@ -65,10 +65,15 @@ impl Drop for TestBroker {
     }
 }
 
+/// The client token every test peer sends.
+pub const TEST_TOKEN: [u8; 32] = [0x5a; 32];
+
 /// A raw DEALER speaking bytes to the broker.
 pub struct RawPeer {
     _ctx: zmq::Context,
     pub socket: zmq::Socket,
+    /// The client token its Envelopes carry ([`TEST_TOKEN`] unless changed).
+    pub token: Vec<u8>,
 }
 
 impl RawPeer {
@@ -81,20 +86,32 @@ impl RawPeer {
         let socket = ctx.socket(zmq::DEALER).unwrap();
         socket.set_linger(0).unwrap();
         socket.connect(endpoint).unwrap();
-        Self { _ctx: ctx, socket }
+        Self {
+            _ctx: ctx,
+            socket,
+            token: TEST_TOKEN.to_vec(),
+        }
+    }
+
+    /// The same peer as another client (another client token).
+    pub fn with_client(mut self, who: u8) -> Self {
+        self.token = vec![who; 32];
+        self
     }
 
     pub fn send_raw(&self, bytes: &[u8]) {
         self.socket.send(bytes, 0).unwrap();
     }
 
+    /// Sends an Envelope with the tests' client token: every peer of a test is one
+    /// client, as every connection of one user is.
     pub fn send(&self, rid: u64, body: Body) {
-        self.send_raw(&encode(rid, body));
+        self.send_raw(&encode_with_token(rid, self.token.clone(), body));
     }
 
     /// Sends an Envelope and its payload frames.
     pub fn send_with(&self, rid: u64, body: Body, payload: Vec<Vec<u8>>) {
-        let mut frames = vec![encode(rid, body)];
+        let mut frames = vec![encode_with_token(rid, self.token.clone(), body)];
         frames.extend(payload);
         self.socket.send_multipart(frames, 0).unwrap();
     }

@@ -24,8 +24,20 @@ fn secs(x: f64) -> Duration {
     Duration::from_secs_f64(x)
 }
 
+/// A test client's principal: its routing id as text.
+fn own(client: &[u8]) -> String {
+    String::from_utf8_lossy(client).into_owned()
+}
+
 fn live(s: &mut Sessions, id: u64, client: &[u8], worker: &[u8]) {
-    s.open(id, client.to_vec(), worker.to_vec(), b"open".to_vec(), 1);
+    s.open(
+        id,
+        (client.to_vec(), own(client)),
+        worker.to_vec(),
+        b"open".to_vec(),
+        1,
+        secs(0.0),
+    );
     assert_eq!(
         s.reply(id, worker, head(OPEN, 0)),
         Reply::Forward {
@@ -41,11 +53,14 @@ fn replies_route_back_in_order_and_only_from_the_sessions_worker() {
     live(&mut s, 10, b"c1", b"w1");
     live(&mut s, 20, b"c2", b"w2");
     assert_eq!(
-        s.route(10, b"c2"),
+        s.route(10, b"c2", &own(b"c2"), secs(0.0)),
         Route::Unknown,
         "a session belongs to its client"
     );
-    assert_eq!(s.route(10, b"c1"), Route::Send(b"w1".to_vec()));
+    assert_eq!(
+        s.route(10, b"c1", &own(b"c1"), secs(0.0)),
+        Route::Send(b"w1".to_vec())
+    );
     s.sent(
         10,
         Pending {
@@ -95,7 +110,14 @@ fn replies_route_back_in_order_and_only_from_the_sessions_worker() {
 #[test]
 fn a_refused_open_leaves_no_session_and_an_opening_one_dies_with_its_worker() {
     let mut s = Sessions::new(LogLimits::default());
-    s.open(1, b"c".to_vec(), b"w".to_vec(), vec![], 4);
+    s.open(
+        1,
+        (b"c".to_vec(), own(b"c")),
+        b"w".to_vec(),
+        vec![],
+        4,
+        secs(0.0),
+    );
     let refused = ReplyHead {
         error: true,
         ..head(OPEN, 0)
@@ -108,7 +130,14 @@ fn a_refused_open_leaves_no_session_and_an_opening_one_dies_with_its_worker() {
         }
     );
     assert!(s.is_empty());
-    s.open(2, b"c".to_vec(), b"w".to_vec(), vec![], 5);
+    s.open(
+        2,
+        (b"c".to_vec(), own(b"c")),
+        b"w".to_vec(),
+        vec![],
+        5,
+        secs(0.0),
+    );
     let orphans = s.worker_gone(b"w", secs(1.0));
     assert_eq!(orphans.lost.len(), 1);
     assert_eq!(orphans.lost[0].requests, vec![5]);
@@ -151,7 +180,7 @@ fn stalled_session() -> (Sessions, u64) {
     let orphans = s.worker_gone(b"w1", secs(10.0));
     assert_eq!(orphans.stalled, vec![id]);
     assert!(orphans.lost.is_empty());
-    assert_eq!(s.route(id, b"c"), Route::Hold);
+    assert_eq!(s.route(id, b"c", &own(b"c"), secs(0.0)), Route::Hold);
     s.hold(
         id,
         Held {
@@ -195,7 +224,10 @@ fn a_stalled_session_is_replayed_on_another_worker_then_its_held_requests_go() {
         "in flight first, then held"
     );
     assert_eq!(held[0].payload, step(4).payload);
-    assert_eq!(s.route(id, b"c"), Route::Send(b"w2".to_vec()));
+    assert_eq!(
+        s.route(id, b"c", &own(b"c"), secs(0.0)),
+        Route::Send(b"w2".to_vec())
+    );
     assert_eq!(
         s.stats(),
         ReplayStats {
@@ -232,7 +264,7 @@ fn a_replay_that_diverges_or_fails_loses_the_session() {
         vec![5, 6, 7],
         "the held requests are answered with the loss"
     );
-    assert!(s.get(id, b"c").is_none());
+    assert!(s.get(id, "c").is_none());
 
     let (mut s, id) = stalled_session();
     s.start_replay(id, b"w2".to_vec());
@@ -310,4 +342,83 @@ fn a_session_past_its_log_bound_is_lost_with_its_worker() {
         "its request in flight is answered"
     );
     assert_eq!(s.stats().lost, 1);
+}
+
+#[test]
+fn only_the_owner_reaches_a_session_and_a_reconnected_owner_gets_the_replies() {
+    let mut s = Sessions::new(LogLimits::default());
+    s.open(
+        7,
+        (b"r1".to_vec(), "key:A".into()),
+        b"w".to_vec(),
+        vec![],
+        1,
+        secs(0.0),
+    );
+    assert!(matches!(
+        s.reply(7, b"w", head(OPEN, 0)),
+        Reply::Forward { .. }
+    ));
+    // another principal on the first connection's routing id (a peer that took over a
+    // departed client's routing id) does not reach it
+    assert_eq!(s.route(7, b"r1", "key:B", secs(1.0)), Route::Unknown);
+    assert_eq!(s.owned_by("key:A"), 1);
+    assert_eq!(s.owned_by("key:B"), 0);
+    // the owner from a new connection does, and the replies follow it there
+    assert_eq!(
+        s.route(7, b"r2", "key:A", secs(2.0)),
+        Route::Send(b"w".to_vec())
+    );
+    s.sent(
+        7,
+        Pending {
+            client_request: 9,
+            sent: Sent::Change(step(1)),
+        },
+    );
+    assert_eq!(
+        s.reply(7, b"w", head(STEP, 1)),
+        Reply::Forward {
+            client: b"r2".to_vec(),
+            request: 9
+        }
+    );
+}
+
+#[test]
+fn idle_sessions_are_listed_oldest_first_and_expire() {
+    let mut s = Sessions::new(LogLimits::default());
+    for (id, t) in [(1u64, 0.0), (2, 5.0), (3, 8.0)] {
+        s.open(
+            id,
+            (b"c".to_vec(), own(b"c")),
+            b"w".to_vec(),
+            vec![],
+            id,
+            secs(t),
+        );
+        assert!(matches!(
+            s.reply(id, b"w", head(OPEN, 0)),
+            Reply::Forward { .. }
+        ));
+    }
+    // session 3 is being stepped: not idle while its step is on the way
+    assert_eq!(s.route(3, b"c", "c", secs(9.0)), Route::Send(b"w".to_vec()));
+    s.sent(
+        3,
+        Pending {
+            client_request: 4,
+            sent: Sent::Change(step(1)),
+        },
+    );
+    assert_eq!(s.idle(secs(10.0), secs(4.0)), vec![1, 2]);
+    assert_eq!(s.idle(secs(10.0), secs(6.0)), vec![1]);
+    assert!(s.idle(secs(100.0), secs(6.0)).iter().all(|&id| id != 3));
+    let (lost, worker) = s.expire(1, "expired".into()).unwrap();
+    assert_eq!(
+        (lost.session, worker, lost.requests),
+        (1, b"w".to_vec(), vec![])
+    );
+    assert!(!s.contains(1));
+    assert!(s.expire(1, "again".into()).is_none());
 }
