@@ -217,6 +217,10 @@ fn paddock_rollout_endpoint_names_a_broker_gone_for_good_within_seconds() {
     );
     let took = killed.elapsed();
     let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!(
+        "paddock rollout ended {took:?} after the kill: {}",
+        stderr.trim()
+    );
     assert!(!out.status.success(), "paddock rollout succeeded: {stderr}");
     assert!(
         stderr.contains(&c.front) && stderr.contains("does not answer"),
@@ -243,6 +247,7 @@ fn a_client_of_an_absent_broker_gets_not_answering_in_bounded_time() {
         .request_resumable(Body::RolloutBatch(batch), &quick(), |_| {})
         .expect_err("a batch with no broker");
     let took = t0.elapsed();
+    eprintln!("gave up after {took:?}: {e}");
     assert!(matches!(e, ClientError::NotAnswering(_)), "{e}");
     assert!(e.is_transport());
     // quiet (0.5 s) + answer_within (3 s), and some slack for a loaded machine
