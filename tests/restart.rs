@@ -180,12 +180,18 @@ fn paddock_rollout_endpoint_outlives_a_broker_restart_with_the_local_output() {
     args.extend(["--endpoint", &c.front]);
     let mut rollout = spawn_paddock(&args);
     wait_mid_batch(&c, &mut rollout);
+    let before = c.status()["instance"].clone();
     c.broker.as_mut().unwrap().kill9();
     c.start_broker();
     let out = wait_within(
         rollout,
         Duration::from_secs(120),
         "paddock rollout --endpoint",
+    );
+    let after = c.status()["instance"].clone();
+    assert!(
+        before.as_str().is_some_and(|i| i.len() == 16) && after != before,
+        "`paddock status --json` instance ids: {before} before the restart, {after} after"
     );
     assert!(
         out.status.success(),
