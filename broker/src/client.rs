@@ -19,6 +19,9 @@ use std::time::{Duration, Instant};
 use paddock_libzmq::Curve;
 use paddock_proto::Body;
 
+mod resume;
+pub use resume::{Answer, Next, ResumePolicy, Watch};
+
 /// Why a request got no good reply.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
@@ -29,6 +32,17 @@ pub enum ClientError {
     },
     #[error("no reply from the broker within {0:?}")]
     Timeout(Duration),
+    /// A request went quiet and the broker did not answer a status request within
+    /// this long: it is down, unreachable or stuck ([`Client::request_resumable`]).
+    #[error(
+        "the broker does not answer: no reply to a status request within {0:?} \
+         (is it running and reachable?)"
+    )]
+    NotAnswering(Duration),
+    /// The broker restarted (a new instance id) after each of this many sends of a
+    /// request ([`Client::request_resumable`]).
+    #[error("the broker restarted after each of {0} sends of the request: gave up")]
+    Restarted(u32),
     /// The broker (or a worker behind it) refused the request.
     #[error("{}: {} ({})", paddock_proto::code_name(.0.code), .0.message, .0.field)]
     Remote(paddock_proto::Error),
@@ -44,6 +58,13 @@ pub enum ClientError {
 }
 
 impl ClientError {
+    /// Whether the request failed on the way (the broker does not answer, restarted
+    /// too often, refused the connection, or the socket failed) rather than being
+    /// refused by the broker or a worker.
+    pub fn is_transport(&self) -> bool {
+        !matches!(self, ClientError::Remote(_))
+    }
+
     /// The refusal's code, for a remote error.
     pub fn code(&self) -> Option<paddock_proto::ErrorCode> {
         match self {

@@ -69,6 +69,7 @@ fn status_json(s: &paddock_proto::BrokerStatus) -> serde_json::Value {
     serde_json::json!({
         "version": s.version,
         "uptime_s": s.uptime_s,
+        "instance": s.instance,
         "workers": s.workers.iter().map(|w| serde_json::json!({
             "worker_id": w.worker_id,
             "hostname": w.hostname,

@@ -7,22 +7,23 @@
 //! A batch goes out as one `RolloutBatch` (each distinct scenario encoded once, maps
 //! named by content hash); its result comes back as one frame per task, decoded here
 //! through `paddock-wire`. When the broker answers NOT_FOUND for a map hash, the client
-//! stores its maps there with `PutMap` and sends the batch again.
+//! stores its maps there with `PutMap` and sends the batch again. A batch outlives a
+//! restart of the broker (sent again when another broker instance answers); a broker
+//! that does not answer ends it with a transport error, never a scenario error.
 
 use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
-use paddock_broker::client::{Client, ClientError, Received};
+use paddock_broker::client::{Client, ClientError, Received, ResumePolicy};
 use paddock_libzmq::Curve;
 use paddock_proto::{Body, ErrorCode, MapBundle};
 use paddock_rollout::{EpisodeResult, EpisodeTask, Executor, RolloutError};
 use paddock_sim::circuit::Circuits;
-use paddock_wire::{batch_to_proto, local_map, map_ref, outcome_from_bytes};
-
-/// How long a batch may go without any message from the broker before it is given up.
-pub const IDLE_TIMEOUT: Duration = Duration::from_secs(600);
+use paddock_wire::{
+    batch_to_proto, local_map, map_ref, outcome_from_bytes, rollout_error_from_proto,
+};
 
 /// How long a single request (status, job queries) waits for its reply.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
@@ -35,6 +36,8 @@ pub struct Remote {
     pub circuits: Circuits,
     maps: HashMap<String, MapBundle>,
     stored: std::collections::HashSet<String>,
+    /// How a batch watches the broker (how soon one that does not answer is given up).
+    pub resume: ResumePolicy,
 }
 
 /// The CURVE keys every client connection of this process uses (set once by `main`
@@ -64,6 +67,10 @@ impl Remote {
             circuits: circuits.clone(),
             maps: HashMap::new(),
             stored: Default::default(),
+            resume: ResumePolicy {
+                answer_within: REQUEST_TIMEOUT,
+                ..ResumePolicy::default()
+            },
         })
     }
 
@@ -162,44 +169,15 @@ impl Remote {
         Ok(())
     }
 
-    /// Sends `request` and waits for its final reply, passing progress to `on_update`;
-    /// gives up after `idle` without any message for it.
-    pub fn exchange(
-        &mut self,
-        request: Body,
-        idle: Duration,
-        mut on_update: impl FnMut(&Body),
-    ) -> Result<Received, ClientError> {
-        let id = self.client.send(request)?;
-        let mut last = Instant::now();
-        loop {
-            let left = idle.saturating_sub(last.elapsed());
-            if left.is_zero() {
-                return Err(ClientError::Timeout(idle));
-            }
-            let reply = match self.client.recv(left.min(Duration::from_millis(500))) {
-                Ok(x) => x,
-                Err(ClientError::Timeout(_)) => continue,
-                Err(e) => return Err(e),
-            };
-            if reply.request_id != id {
-                continue;
-            }
-            last = Instant::now();
-            match reply.body {
-                Body::Error(e) => return Err(ClientError::Remote(e)),
-                Body::RolloutProgress(_) => on_update(&reply.body),
-                _ => return Ok(reply),
-            }
-        }
-    }
-
-    /// Runs a batch and returns its outcomes in task order.
+    /// Runs a batch and returns its outcomes in task order. The batch survives a
+    /// restart of the broker (it is sent again: [`Client::request_resumable`]); a broker
+    /// that does not answer, or a reply that makes no sense, is a
+    /// [`RolloutError::Transport`], a refusal by the broker the error it names.
     pub fn run_batch(
         &mut self,
         tasks: &[EpisodeTask],
         progress: &(dyn Fn(usize) + Sync),
-    ) -> Result<Vec<Result<EpisodeResult, RolloutError>>> {
+    ) -> Result<Vec<Result<EpisodeResult, RolloutError>>, RolloutError> {
         if tasks.is_empty() {
             return Ok(Vec::new());
         }
@@ -207,17 +185,27 @@ impl Remote {
         for t in tasks {
             let m = &t.scenario.map;
             if !refs.contains_key(m) {
-                refs.insert(m.clone(), map_ref(&self.bundle(m)?));
+                let bundle = self
+                    .bundle(m)
+                    .map_err(|e| RolloutError::invalid("map", m, &format!("{e:#}")))?;
+                refs.insert(m.clone(), map_ref(&bundle));
             }
         }
         let batch = batch_to_proto(tasks, |m| refs[m].clone(), true);
+        let transport = |endpoint: &str, reason: String| RolloutError::Transport {
+            endpoint: endpoint.to_string(),
+            reason,
+        };
         let mut put_done = false;
         loop {
-            let reply = self.exchange(Body::RolloutBatch(batch.clone()), IDLE_TIMEOUT, |b| {
-                if let Body::RolloutProgress(p) = b {
-                    progress(p.done as usize);
-                }
-            });
+            let policy = self.resume;
+            let reply =
+                self.client
+                    .request_resumable(Body::RolloutBatch(batch.clone()), &policy, |b| {
+                        if let Body::RolloutProgress(p) = b {
+                            progress(p.done as usize);
+                        }
+                    });
             match reply {
                 Ok(Received {
                     body: Body::RolloutResult(r),
@@ -225,46 +213,74 @@ impl Remote {
                     ..
                 }) => {
                     if r.outcomes as usize != tasks.len() || payload.len() != tasks.len() {
-                        bail!(
-                            "the broker returned {} outcomes for {} tasks",
-                            payload.len(),
-                            tasks.len()
-                        );
+                        return Err(transport(
+                            &self.endpoint,
+                            format!(
+                                "the broker returned {} outcomes for {} tasks",
+                                payload.len(),
+                                tasks.len()
+                            ),
+                        ));
                     }
                     progress(tasks.len());
                     return Ok(payload.iter().map(|o| outcome_from_bytes(o)).collect());
                 }
-                Ok(other) => bail!(
-                    "the broker answered a rollout batch with {}",
-                    paddock_proto::body_name(&other.body)
-                ),
+                Ok(other) => {
+                    return Err(transport(
+                        &self.endpoint,
+                        format!(
+                            "the broker answered a rollout batch with {}",
+                            paddock_proto::body_name(&other.body)
+                        ),
+                    ));
+                }
                 Err(e) if e.code() == Some(ErrorCode::NotFound) && !put_done => {
-                    // the broker lacks a map: store ours and send the batch again
+                    // the broker lacks a map (a broker restarted without its state
+                    // holds none of ours): store ours and send the batch again
                     put_done = true;
+                    self.stored.clear();
                     let names: Vec<String> = refs.keys().cloned().collect();
                     for m in names {
-                        self.put_map(&m)?;
+                        self.put_map(&m)
+                            .map_err(|e| transport(&self.endpoint, format!("{e:#}")))?;
                     }
                 }
-                Err(e) => {
-                    return Err(anyhow!("rollout batch through {}: {e}", self.endpoint));
-                }
+                Err(ClientError::Remote(e)) => return Err(rollout_error_from_proto(&e)),
+                Err(e) => return Err(transport(&self.endpoint, format!("rollout batch: {e}"))),
             }
         }
+    }
+}
+
+/// The same error again, for every task of a batch that failed as a whole.
+fn batch_error(e: &RolloutError) -> RolloutError {
+    match e {
+        RolloutError::Transport { endpoint, reason } => RolloutError::Transport {
+            endpoint: endpoint.clone(),
+            reason: reason.clone(),
+        },
+        RolloutError::Invalid {
+            field,
+            value,
+            reason,
+        } => RolloutError::Invalid {
+            field: field.clone(),
+            value: value.clone(),
+            reason: reason.clone(),
+        },
+        other => RolloutError::invalid("rollout_batch", "", &other.to_string()),
     }
 }
 
 /// An [`Executor`] that runs batches through a broker.
 pub struct RemoteExecutor {
     remote: Mutex<Remote>,
-    endpoint: String,
 }
 
 impl RemoteExecutor {
     pub fn connect(endpoint: &str, circuits: &Circuits) -> Result<Self> {
         Ok(Self {
             remote: Mutex::new(Remote::connect(endpoint, circuits)?),
-            endpoint: endpoint.to_string(),
         })
     }
 }
@@ -320,13 +336,7 @@ impl Executor for RemoteExecutor {
             let part = &tasks[chunk];
             match remote.run_batch(part, &|n| progress(done + n)) {
                 Ok(r) => out.extend(r),
-                Err(e) => out.extend(part.iter().map(|_| {
-                    Err(RolloutError::Invalid {
-                        field: "endpoint".into(),
-                        value: self.endpoint.clone(),
-                        reason: format!("{e:#}"),
-                    })
-                })),
+                Err(e) => out.extend(part.iter().map(|_| Err(batch_error(&e)))),
             }
         }
         out

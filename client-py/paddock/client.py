@@ -177,6 +177,11 @@ class Client:
         ``vehicle`` (a vehicle YAML path, as ``paddock sysid`` writes) and
         ``vehicle_params`` (f1tenth_gym's keys, see :mod:`paddock.vehicle`) set every
         car's physics.
+
+        The batch outlives a restart of the broker (it is sent again, and gives the same
+        results); a broker that does not answer raises
+        :class:`paddock.errors.BrokerNotAnswering` (within about the client's
+        ``timeout``). ``timeout``: a bound on the whole batch (None: none).
         """
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         if p.ndim != 2:
@@ -204,9 +209,11 @@ class Client:
         for i in range(len(p)):
             for seed in s:
                 batch.tasks.append(pb.RolloutTaskSpec(scenario=i, seed=seed % 2**64))
-        wait = timeout if timeout is not None else max(self.conn.timeout, 0.05 * len(batch.tasks) * time_limit)
-        reply, frames = self.conn.request_frames("rollout_batch", batch, "rollout_result", timeout=wait,
-                                                 on_other=lambda body, msg: None)
+        batch.progress = True
+        # sent again if the broker restarts; a broker that does not answer raises
+        # BrokerNotAnswering within about the connection's timeout
+        reply, frames = self.conn.request_resumable("rollout_batch", batch, "rollout_result",
+                                                    timeout=timeout)
         if reply.outcomes != len(batch.tasks) or len(frames) != len(batch.tasks):
             raise errors.BadMessage(1, "rollout_result.outcomes",
                                     f"{len(frames)} outcomes for {len(batch.tasks)} tasks")

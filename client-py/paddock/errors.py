@@ -24,6 +24,34 @@ class BrokerUnavailable(PaddockError):
         )
 
 
+class BrokerNotAnswering(BrokerUnavailable):
+    """A request (a rollout batch) went quiet and the broker answered no status request
+    within the timeout: it is down, unreachable or stuck. A broker that restarts is
+    not this error: the batch is sent again (:mod:`paddock.resume`)."""
+
+    def __init__(self, endpoint: str, timeout: float, what: str) -> None:
+        PaddockError.__init__(
+            self,
+            f"the Paddock broker at {endpoint} does not answer: no reply to a status request "
+            f"within {timeout:g} s while {what} ran; is it running and reachable?"
+        )
+        self.endpoint = endpoint
+        self.timeout = timeout
+
+
+class BrokerRestarted(PaddockError):
+    """The broker restarted (a new instance id) after every one of ``sends`` sends of a
+    request: the client gave up sending it again."""
+
+    def __init__(self, endpoint: str, sends: int, what: str) -> None:
+        self.endpoint = endpoint
+        self.sends = sends
+        super().__init__(
+            f"the Paddock broker at {endpoint} restarted after each of {sends} sends of "
+            f"{what}: gave up"
+        )
+
+
 class KeyRefused(PaddockError):
     """The broker's authenticator refused this client's CURVE key (or the CURVE handshake
     failed): reported as soon as the handshake fails, not after the reply timeout."""

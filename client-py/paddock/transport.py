@@ -22,6 +22,7 @@ import zmq
 from google.protobuf.message import DecodeError, Message
 
 from . import errors
+from . import resume as rs
 from ._proto import paddock_pb2 as pb
 from .maps import find_map_dir, read_bundle, server_map
 
@@ -326,6 +327,90 @@ class Connection:
                     on_other(body, reply)
                     continue
                 raise errors.UnknownType(3, "body", f"unexpected reply {body} to {field}")
+
+    def request_resumable(self, field: str, msg: Message, expect: str,
+                          policy: rs.ResumePolicy | None = None, timeout: float | None = None,
+                          on_progress: Callable[[Message], None] | None = None,
+                          ) -> tuple[Message, list[zmq.Frame]]:
+        """Send an idempotent request (a rollout batch) and return its reply and payload
+        frames, through restarts of the broker (:mod:`paddock.resume`): the request is
+        sent again when another broker instance answers, and a broker that answers no
+        status request within ``policy.answer_within`` (default: this connection's
+        timeout) raises :class:`errors.BrokerNotAnswering`. ``timeout``: a bound on the
+        whole wait (None: as long as the broker answers). ``on_progress`` sees the
+        current send's ``RolloutProgress`` messages."""
+        policy = policy or rs.ResumePolicy(answer_within=self.timeout)
+        status = pb.StatusRequest()
+        with self._lock:
+            deadline = None if timeout is None else time.monotonic() + timeout
+            opening = self.send("status_request", status)
+            current = self.send(field, msg)
+            sends = {current}
+            pings: set[int] = set()  # status requests since the current send
+            watch = rs.Watch(policy, time.monotonic())
+            while True:
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    self._restart()
+                    raise errors.BrokerUnavailable(self.endpoint, float(timeout or 0), field)
+                step, value = watch.next(now)
+                if step == rs.PING:
+                    pings.add(self.send("status_request", status))
+                    continue
+                if step == rs.NOT_ANSWERING:
+                    self._restart()
+                    raise errors.BrokerNotAnswering(self.endpoint, value, field)
+                if deadline is not None:
+                    value = min(value, deadline - now)
+                if not self._wait(max(1, int(value * 1000))):
+                    continue
+                frames = self._sock.recv_multipart(copy=False)  # type: ignore[union-attr]
+                env = pb.Envelope()
+                try:
+                    env.ParseFromString(frames[0].buffer)
+                except DecodeError:
+                    continue
+                rid, body, now = env.request_id, env.WhichOneof("body"), time.monotonic()
+                if rid == opening or rid in pings:
+                    if body != "broker_status":
+                        continue
+                    instance = env.broker_status.instance
+                    if rid == opening:
+                        watch.opened(now, instance)
+                        continue
+                    answer = watch.answered(now, instance)
+                    if answer == rs.GIVE_UP:
+                        self._restart()
+                        raise errors.BrokerRestarted(self.endpoint, watch.sends, field)
+                    if answer == rs.RESEND:
+                        pings.clear()
+                        opening = self.send("status_request", status)
+                        current = self.send(field, msg)
+                        sends.add(current)
+                        watch.resent(now)
+                    continue
+                if rid not in sends:
+                    continue  # a reply to an earlier request, or an earlier opening status
+                if body is None:
+                    raise errors.BadMessage(1, "body", f"reply to {field} has no body")
+                reply = getattr(env, body)
+                if body == "error":
+                    raise errors.from_reply(reply.code, reply.field, reply.message)
+                if body == expect:
+                    return reply, frames[1:]
+                if body != "rollout_progress":
+                    raise errors.UnknownType(3, "body", f"unexpected reply {body} to {field}")
+                if rid == current:
+                    watch.progress(now, reply.instance)
+                    if on_progress is not None:
+                        on_progress(reply)
+                else:
+                    watch.heard(now)
+
+    def _restart(self) -> None:
+        """A new socket: late replies to what was given up never reach later requests."""
+        self.close()
+        self._connect()
 
     def env(self, session_id: int, op: int, msg: Message | None = None,
             timeout: float | None = None) -> tuple[pb.EnvReply, list[zmq.Frame]]:

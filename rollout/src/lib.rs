@@ -42,6 +42,11 @@ pub enum RolloutError {
     },
     #[error(transparent)]
     World(#[from] paddock_sim::world::WorldError),
+    /// The episodes could not be run where they were sent (a broker that does not
+    /// answer, restarted too often, or sent an undecodable reply): nothing is wrong
+    /// with the scenario.
+    #[error("broker at {endpoint}: {reason}")]
+    Transport { endpoint: String, reason: String },
 }
 
 impl RolloutError {

@@ -222,6 +222,7 @@ pub fn env_error(e: &RolloutError, learners: usize) -> Error {
             error(ErrorCode::Internal, "", e.to_string())
         }
         RolloutError::World(_) => invalid("", e.to_string()),
+        RolloutError::Transport { .. } => error(ErrorCode::Internal, "", e.to_string()),
     }
 }
 

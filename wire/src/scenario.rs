@@ -153,6 +153,7 @@ pub fn rollout_error_to_proto(e: &RolloutError) -> Error {
         }
         RolloutError::Map(_) => error(ErrorCode::InvalidArgument, "map", e.to_string()),
         RolloutError::World(_) => error(ErrorCode::InvalidArgument, "", e.to_string()),
+        RolloutError::Transport { .. } => error(ErrorCode::Internal, "", e.to_string()),
     }
 }
 

@@ -188,6 +188,7 @@ impl Broker {
             let msg = Body::RolloutProgress(RolloutProgress {
                 done: done as u32,
                 total: total as u32,
+                instance: self.instance.clone(),
             });
             if let Some(OwnerKind::Batch { last_progress, .. }) =
                 self.sources.get_mut(&source).map(|o| &mut o.kind)

@@ -133,6 +133,8 @@ pub struct Broker {
     blobs: Blobs<Vec<u8>>,
     stats: Stats,
     started: Instant,
+    /// This run's instance id (`BrokerStatus.instance`): drawn at random at start.
+    instance: String,
 }
 
 fn socket_err(what: &'static str, endpoint: &str) -> impl FnOnce(zmq::Error) -> BrokerError {
@@ -303,6 +305,7 @@ impl Broker {
             blobs,
             stats: Stats::default(),
             started: Instant::now(),
+            instance: workers::draw_instance_id(),
         };
         tracing::info!(
             frontend = %b.frontend_endpoint,

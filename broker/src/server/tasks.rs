@@ -119,6 +119,7 @@ impl Broker {
             Body::RolloutProgress(RolloutProgress {
                 done: done as u32,
                 total: total as u32,
+                instance: self.instance.clone(),
             }),
         );
     }

@@ -219,6 +219,20 @@ impl Broker {
                 .map(|(k, v)| (k.clone(), *v))
                 .collect(),
             uptime_s: self.started.elapsed().as_secs_f64(),
+            instance: self.instance.clone(),
         }
     }
+}
+
+/// A fresh broker instance id: 16 hex digits from the OS's randomness (else from the
+/// clock), so that a client tells a restarted broker from the one that took its batch.
+pub(super) fn draw_instance_id() -> String {
+    let mut b = [0u8; 8];
+    if getrandom::fill(&mut b).is_err() {
+        let t = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(1, |d| d.as_nanos() as u64);
+        b = (t ^ u64::from(std::process::id()).rotate_left(40)).to_le_bytes();
+    }
+    format!("{:016x}", u64::from_le_bytes(b))
 }
