@@ -55,6 +55,8 @@ struct PerfReport {
     map_resolution: f64,
     /// The LIDAR march's code path (`portable`, `avx`, `avx512`).
     scan_path: String,
+    /// How that path reads the clearance table here (`gather` or `scalar loads`).
+    scan_clearance_loads: String,
     /// The CPU's SIMD features, space-separated.
     cpu_features: String,
     agents: usize,
@@ -172,6 +174,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         map_cells: [circuit.map.width(), circuit.map.height()],
         map_resolution: circuit.map.resolution(),
         scan_path: path.name().to_string(),
+        scan_clearance_loads: path.clearance_loads().to_string(),
         cpu_features: cpu_features(),
         agents: args.agents,
         agent_steps_per_s_scan: scan_rate,
@@ -191,8 +194,9 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         report.agents
     );
     outln!(
-        "  LIDAR path {} (CPU features: {})",
+        "  LIDAR path {}, clearances by {} (CPU features: {})",
         report.scan_path,
+        report.scan_clearance_loads,
         report.cpu_features
     );
     if let Some(r) = report.agent_steps_per_s_scan {

@@ -1,6 +1,9 @@
 //! Every code path of the exact LIDAR scan (portable, AVX, AVX-512: those this CPU has)
 //! gives the same bits on the same input, over many random poses on the real race tracks
-//! of `shared/maps` and on the shipped maps, with and without other cars in view.
+//! of `shared/maps` and on the shipped maps, with and without other cars in view; along
+//! driven trajectories (consecutive poses a step apart, with resets to far poses); and
+//! from degenerate poses (origins on grid lines and cell corners, beams along the grid
+//! axes and diagonals, origins in walls and off the map).
 
 mod common;
 
@@ -124,12 +127,145 @@ fn every_scan_path_gives_the_same_bits_on_shipped_maps() {
     }
 }
 
+/// Asserts that every path this CPU has scans `pose` to the same bits as the portable
+/// path.
+fn assert_paths_agree(name: &str, lidars: &[Lidar], map: &Map, pose: Pose, cars: &[Obb]) {
+    let beams = lidars[0].num_beams();
+    let (mut want, mut got) = (vec![0.0; beams], vec![0.0; beams]);
+    lidars[0].scan(map, pose, cars, &mut want);
+    for fast in &lidars[1..] {
+        fast.scan(map, pose, cars, &mut got);
+        for (i, (a, b)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                a.to_bits(),
+                b.to_bits(),
+                "{name}: path {} beam {i} from {pose:?}: {a} vs portable {b}",
+                fast.path()
+            );
+        }
+    }
+}
+
+/// `config` on every path this CPU has, portable first.
+fn every_path(config: LidarConfig) -> Vec<Lidar> {
+    let lidar = Lidar::new(config);
+    ScanPath::ALL
+        .into_iter()
+        .filter(|p| p.supported())
+        .map(|p| lidar.clone().with_path(p).unwrap())
+        .collect()
+}
+
+/// A car driven along the centreline: poses 0.01 s apart at 4-12 m/s with a weaving
+/// heading and lateral offset, and every 150 poses a reset to a random far pose (as an
+/// episode reset does); another car in view half the time. Returns the poses scanned.
+fn drive(name: &str, lidars: &[Lidar], map: &Map, track: &Track, seed: u64, poses: usize) -> usize {
+    let mut rng = Rng::new(seed);
+    let mut s = rng.uniform_range(0.0, track.length());
+    let mut speed = 8.0;
+    for k in 0..poses {
+        if k % 150 == 149 {
+            s = rng.uniform_range(0.0, track.length());
+        }
+        speed = (speed + rng.uniform_range(-0.2, 0.2)).clamp(4.0, 12.0);
+        s = (s + speed * 0.01) % track.length();
+        let (on_line, _, _) = track.at(s);
+        let phase = k as f64 * 0.02;
+        let (ps, pc) = libm::sincos(on_line.theta);
+        let lateral = 0.6 * libm::sin(phase);
+        let pose = Pose::new(
+            on_line.x - ps * lateral,
+            on_line.y + pc * lateral,
+            on_line.theta + 0.2 * libm::cos(phase),
+        );
+        let cars = if (k / 40) % 2 == 0 {
+            let (ahead, _, _) = track.at((s + 2.0) % track.length());
+            vec![Obb::car(ahead, 0.58, 0.31)]
+        } else {
+            Vec::new()
+        };
+        assert_paths_agree(name, lidars, map, pose, &cars);
+    }
+    poses
+}
+
+#[test]
+fn every_scan_path_gives_the_same_bits_along_driven_trajectories() {
+    let lidars = every_path(LidarConfig::default());
+    let mut scanned = 0;
+    for (k, name) in ["lakeside", "harbour", "quarry"].into_iter().enumerate() {
+        let circuit = Circuits::new()
+            .get(name)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        scanned += drive(
+            name,
+            &lidars,
+            &circuit.map,
+            &circuit.track,
+            50 + k as u64,
+            400,
+        );
+    }
+    for (k, (name, yaml, center)) in shared_tracks().iter().enumerate().step_by(4) {
+        let map = Map::load(yaml).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let track = Track::load(center, None).unwrap_or_else(|e| panic!("{name}: {e}"));
+        scanned += drive(name, &lidars, &map, &track, 70 + k as u64, 300);
+    }
+    assert!(scanned >= 1200, "scanned {scanned} poses");
+}
+
+#[test]
+fn every_scan_path_gives_the_same_bits_from_degenerate_poses() {
+    let circuit = Circuits::new().get("lakeside").unwrap();
+    let map = &circuit.map;
+    // Beams every pi/8 from -pi/2 (the middle one exactly along the heading), and the
+    // default fan.
+    let configs = [
+        LidarConfig {
+            num_beams: 9,
+            fov: std::f64::consts::PI,
+            ..LidarConfig::default()
+        },
+        LidarConfig::default(),
+    ];
+    let (w, h) = (map.width() as f64, map.height() as f64);
+    let mut rng = Rng::new(5);
+    let mut scanned = 0;
+    for config in configs {
+        let lidars = every_path(config);
+        for k in 0..400 {
+            // Cell corners, cell sides and centres, on and off the map and in walls.
+            let (gx, gy) = match k % 4 {
+                0 => (rng.below(w as u64) as f64, rng.below(h as u64) as f64),
+                1 => (rng.below(w as u64) as f64, rng.below(h as u64) as f64 + 0.5),
+                2 => (rng.below(w as u64) as f64 + 0.5, rng.below(h as u64) as f64),
+                _ => (
+                    rng.uniform_range(-20.0, w + 20.0).floor(),
+                    rng.uniform_range(-20.0, h + 20.0).floor(),
+                ),
+            };
+            let (x, y) = map.grid_to_world(gx, gy);
+            let theta = match k % 3 {
+                0 => rng.below(8) as f64 * std::f64::consts::FRAC_PI_4,
+                1 => rng.below(4) as f64 * std::f64::consts::FRAC_PI_2 - std::f64::consts::PI,
+                _ => rng.uniform_range(-3.2, 3.2),
+            };
+            assert_paths_agree("lakeside", &lidars, map, Pose::new(x, y, theta), &[]);
+            scanned += 1;
+        }
+    }
+    assert_eq!(scanned, 800);
+}
+
 #[test]
 fn forcing_a_path_is_checked_and_reported() {
     let lidar = Lidar::new(LidarConfig::default());
     assert_eq!(lidar.path(), ScanPath::best());
     for path in ScanPath::ALL {
         assert_eq!(ScanPath::from_name(path.name()), Some(path));
+        // only the `avx` path may gather its clearances
+        let loads = path.clearance_loads();
+        assert!(loads == "scalar loads" || (loads == "gather" && path == ScanPath::Avx));
         match lidar.clone().with_path(path) {
             Ok(forced) => {
                 assert!(path.supported());

@@ -75,6 +75,17 @@ impl ScanPath {
             .unwrap_or(ScanPath::Portable)
     }
 
+    /// How the march reads its clearance table on this CPU: `gather` (the `avx` path on
+    /// Intel CPUs with AVX2: one AVX2 gather per step of four rays) or `scalar loads`
+    /// (every other case). Both read the same bytes; only the speed differs.
+    pub fn clearance_loads(self) -> &'static str {
+        #[cfg(target_arch = "x86_64")]
+        if self == ScanPath::Avx && super::march::avx_gather_pays() {
+            return "gather";
+        }
+        "scalar loads"
+    }
+
     /// The SIMD level the march takes (0 portable, 1 AVX, 2 AVX-512).
     pub(super) fn level(self) -> u8 {
         match self {

@@ -205,11 +205,24 @@ fn check_rays(batch: &mut Batch, map: &Map, gx: f64, gy: f64, dirs: &[(f64, f64,
     }
     #[cfg(target_arch = "x86_64")]
     {
-        for (simd, usable) in [(1, march::avx_usable(map)), (2, march::avx512_usable(map))] {
+        // The AVX march both with and (on AVX2 CPUs) without gathered clearances.
+        let avx = march::avx_usable(map);
+        let gather = avx && std::arch::is_x86_feature_detected!("avx2");
+        for (simd, usable, forced) in [
+            (1, avx, Some(false)),
+            (1, gather, Some(true)),
+            (2, march::avx512_usable(map), None),
+        ] {
             if usable {
+                batch.avx_gather = forced;
                 let fast = run(batch, simd);
+                batch.avx_gather = None;
                 for (i, (a, b)) in fast.iter().zip(&portable).enumerate() {
-                    assert_eq!(a.to_bits(), b.to_bits(), "simd level {simd}, ray {i}");
+                    assert_eq!(
+                        a.to_bits(),
+                        b.to_bits(),
+                        "simd level {simd} (gather {forced:?}), ray {i}"
+                    );
                 }
             }
         }

@@ -42,7 +42,7 @@ mod avx;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
 
-/// Rays per batch: the batch's arrays (about 43 KiB) stay in a 48 KiB L1 cache. 512 was
+/// Rays per batch: the batch's arrays (about 45 KiB) stay in a 48 KiB L1 cache. 512 was
 /// slower: arrays 4 KiB apart put each ray's fourteen values in the same cache set.
 pub(super) const CHUNK: usize = 384;
 /// Rays per SIMD packet (four f64 lanes of AVX).
@@ -66,6 +66,19 @@ pub(super) fn avx512_usable(map: &Map) -> bool {
         && len < i32::MAX as usize
         && std::arch::is_x86_feature_detected!("avx512f")
         && std::arch::is_x86_feature_detected!("avx2")
+}
+
+/// Whether the AVX march reads its clearances by AVX2 gathers: on Intel CPUs with AVX2
+/// (faster there; see `avx.rs`). Detected once.
+#[cfg(target_arch = "x86_64")]
+pub(in crate::lidar) fn avx_gather_pays() -> bool {
+    static PAYS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *PAYS.get_or_init(|| {
+        // The vendor string of CPUID leaf 0: "GenuineIntel".
+        let id = std::arch::x86_64::__cpuid(0);
+        let intel = (id.ebx, id.edx, id.ecx) == (0x756e_6547, 0x4965_6e69, 0x6c65_746e);
+        intel && std::arch::is_x86_feature_detected!("avx2")
+    })
 }
 
 /// 1.5 * 2^52: adding and subtracting it rounds a float of magnitude < 2^51 to an integer.
@@ -102,9 +115,15 @@ pub(super) struct Batch {
     /// Clearance of the current cell (AVX march only).
     v: [f64; CHUNK],
     live: [u16; CHUNK],
+    /// Bit offset of the ray's quadrant in a cell's four table bytes read as one
+    /// little-endian u32 (the AVX2 gather reads whole cells).
+    qshift: [i32; CHUNK],
     /// The widest SIMD march `cast` may use (tests force each one): 0 portable, 1 AVX,
     /// 2 AVX-512.
     pub simd: u8,
+    /// Whether the AVX march gathers its clearances (tests force each way; honoured only
+    /// on CPUs with AVX2); `None`: where that pays, see [`avx_gather_pays`].
+    pub avx_gather: Option<bool>,
 }
 
 impl Batch {
@@ -125,7 +144,9 @@ impl Batch {
             t: [0.0; CHUNK],
             v: [0.0; CHUNK],
             live: [0; CHUNK],
+            qshift: [0; CHUNK],
             simd: 2,
+            avx_gather: None,
         })
     }
 
@@ -163,8 +184,14 @@ impl Batch {
                 return;
             }
             if AVX && self.simd >= 1 && avx_usable(map) {
-                // SAFETY: `avx_usable` checked that the CPU supports AVX.
-                unsafe { self.march_avx(map, gx, gy, padded) };
+                let gather = self.avx_gather.unwrap_or_else(avx_gather_pays);
+                if gather && std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU supports AVX (`avx_usable`) and AVX2.
+                    unsafe { self.march_avx_gather(map, gx, gy, padded) };
+                } else {
+                    // SAFETY: `avx_usable` checked that the CPU supports AVX.
+                    unsafe { self.march_avx(map, gx, gy, padded) };
+                }
                 self.finish(w, h, n, out);
                 return;
             }
@@ -257,6 +284,7 @@ impl Batch {
             // Quadrant (x_neg as usize) | (y_neg as usize) << 1, as `Map` lays them out.
             let quadrant = (1.0 - self.px[i]) + 2.0 * (1.0 - self.py[i]);
             self.base[i] = base0 + quadrant;
+            self.qshift[i] = 8 * quadrant as i32;
             self.live[i] = i as u16;
         }
         if gx >= 0.0 && gy >= 0.0 && gx < w && gy < h {
