@@ -174,6 +174,18 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
             .map(|n| EffectKind::from_name(n.trim()))
             .collect::<Result<_, _>>()?;
     }
+    // read before the analysis: a bad file is told at once, not after it
+    let vesc = match &a.vesc_config {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("reading the VESC config {}", p.display()))?;
+            Some(
+                paddock_sysid::explain::vesc_params(&text)
+                    .with_context(|| format!("the VESC config {}", p.display()))?,
+            )
+        }
+        None => None,
+    };
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template("sysid [{bar:25}] {pos}/{len} {elapsed} {msg}")
@@ -188,17 +200,6 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
     };
     let analysis = analyze(&rec, &nominal, &opts, &progress)?;
     bar.finish_and_clear();
-    let vesc = match &a.vesc_config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("reading the VESC config {}", p.display()))?;
-            Some(
-                paddock_sysid::explain::vesc_params(&text)
-                    .with_context(|| format!("the VESC config {}", p.display()))?,
-            )
-        }
-        None => None,
-    };
     report::write_with(out, &analysis, &rec, vesc.as_deref())?;
     if !a.no_plots {
         sysid_plots::write_all(out, &rec, &analysis)?;

@@ -135,11 +135,61 @@ fn heat(score: f64, max: f64) -> RGBColor {
     RGBColor(mix(40.0, 220.0), mix(90.0, 40.0), mix(200.0, 30.0))
 }
 
+/// Per sample: the mean squared noise-normalised residual over the channels measured
+/// there (a pose-and-speed log has no vy and yaw_rate: NaN, which coloured every sample
+/// black).
 fn sample_scores(res: &Residuals, sigma: &[f64; 6]) -> Vec<f64> {
     res.values
         .iter()
-        .map(|r| (0..6).map(|c| (r[c] / sigma[c]).powi(2)).sum::<f64>() / 6.0)
+        .map(|r| {
+            let (sum, n) = (0..6)
+                .map(|c| (r[c] / sigma[c]).powi(2))
+                .filter(|v| v.is_finite())
+                .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+            if n == 0 { 0.0 } else { sum / n as f64 }
+        })
         .collect()
+}
+
+/// The colour scale of [`heat`] as a vertical bar, labelled in score units.
+fn colour_bar<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    max: f64,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let mut chart = ChartBuilder::on(area)
+        .caption("residual", ("sans-serif", 14))
+        .margin_top(40)
+        .margin_bottom(40)
+        .margin_right(10)
+        .y_label_area_size(45)
+        .build_cartesian_2d(0.0f64..1.0, 0.0f64..1.0)?;
+    // the bar's height is log(1 + score), as the colours are
+    let score = |t: f64| (1.0 + max).powf(t) - 1.0;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_labels(6)
+        .y_label_formatter(&|t| {
+            let v = score(*t);
+            if v < 10.0 {
+                format!("{v:.1}")
+            } else {
+                format!("{v:.0}")
+            }
+        })
+        .y_desc("mean (residual / noise)^2")
+        .label_style(("sans-serif", 11))
+        .draw()?;
+    const STEPS: usize = 100;
+    chart.draw_series((0..STEPS).map(|i| {
+        let (t0, t1) = (i as f64 / STEPS as f64, (i + 1) as f64 / STEPS as f64);
+        Rectangle::new([(0.0, t0), (1.0, t1)], heat(score(t0), max).filled())
+    }))?;
+    Ok(())
 }
 
 fn by_place(path: &Path, rec: &Recording, a: &Analysis) -> Result<()> {
@@ -162,7 +212,7 @@ fn by_place(path: &Path, rec: &Recording, a: &Analysis) -> Result<()> {
     }
     let span = (x1 - x0).max(y1 - y0).max(1.0) * 0.05;
     let (x0, x1, y0, y1) = (x0 - span, x1 + span, y0 - span, y1 + span);
-    let (w, h) = (1300u32, 650u32);
+    let (w, h) = (1410u32, 650u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
     let patch = a
         .effects
@@ -176,7 +226,9 @@ fn by_place(path: &Path, rec: &Recording, a: &Analysis) -> Result<()> {
             "Residual by place (blue small, red large; log scale)",
             ("sans-serif", 20),
         )?;
-        let halves = root.split_evenly((1, 2));
+        let (maps, bar) = root.split_horizontally(w - 110);
+        colour_bar(&bar, max)?;
+        let halves = maps.split_evenly((1, 2));
         for (area, (title, scores)) in halves
             .iter()
             .zip([("nominal model", &nominal), ("fitted model", &fitted)])

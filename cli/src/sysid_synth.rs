@@ -29,9 +29,11 @@ const DT: f64 = 0.01;
 #[derive(Args, Debug)]
 pub struct SynthArgs {
     /// An effect hidden in the car's physics: NAME[:param=value,...] (repeatable). Names:
-    /// steering_delay, steering_lag, steering_offset, drive_lag, drag, friction,
-    /// friction_patch (params mu, xmin, ymin, xmax, ymax; without a region the box sits
-    /// on the sharpest bend), tire_saturation. Missing parameters take typical values.
+    /// steering_delay, steering_lag, steering_offset, steering_gain, steering_backlash,
+    /// drive_lag, speed_gain, drag, friction, friction_patch (params mu, xmin, ymin, xmax,
+    /// ymax; without a region the box sits on the sharpest bend), tire_saturation, and
+    /// measurement_delay (the logged state is that old). Missing parameters take typical
+    /// values.
     #[arg(long = "effect")]
     effects: Vec<String>,
     /// Map name or directory.

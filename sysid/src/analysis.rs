@@ -15,8 +15,9 @@ use crate::recording::Recording;
 use crate::replay::{Replay, Residuals};
 use crate::uncertainty::{ambiguities, could_be, interval, joint_refit, profile};
 
-/// A held-out block's RMSE, its sample count and the fit made without it.
-type FoldResult = ([f64; 6], usize, Vec<Fitted>);
+/// A held-out block's sums of squared residuals and measured samples per channel, and the
+/// fit made without it.
+type FoldResult = ([f64; 6], [usize; 6], Vec<Fitted>);
 
 /// Knobs of the analysis.
 #[derive(Debug, Clone)]
@@ -203,15 +204,18 @@ pub fn analyze(
     let ctx = FitContext {
         replay: &replay,
         nominal,
-        fold_of_window: (0..n_w)
-            .map(|w| {
-                if n_runs >= 2 {
-                    replay.window_run(w) % folds
-                } else {
-                    w * folds / n_w
-                }
-            })
-            .collect(),
+        fold_of_window: {
+            let group = run_groups(n_runs, folds, opts.seed);
+            (0..n_w)
+                .map(|w| {
+                    if n_runs >= 2 {
+                        group[replay.window_run(w)]
+                    } else {
+                        w * folds / n_w
+                    }
+                })
+                .collect()
+        },
         folds,
         extent,
         patch_seeds: located.patch_seeds.clone(),
@@ -315,22 +319,29 @@ pub fn analyze(
                 let (fit, _) = ctx.fit(&[], &chosen, &|w| fold_of[w] != f, evals)?;
                 let res =
                     replay.residuals_at(&build_params(nominal, &fit), measurement_delay(&fit));
-                let n = res.window.iter().filter(|w| fold_of[**w] == f).count();
-                let r = res.rmse(|w| fold_of[w] == f);
-                Ok((r, n, fit))
+                let (sq, n) = res.sum_sq(|w| fold_of[w] == f);
+                Ok((sq, n, fit))
             })
             .collect();
+        // pooled per channel over the blocks that measure it: a channel only some
+        // recordings have (vy from one bag among pose-only CSVs) is still scored
         let mut sq = [0.0; 6];
-        let mut n_all = 0usize;
+        let mut n_all = [0usize; 6];
         for r in per_fold {
-            let (r, n, fit) = r?;
+            let (s, n, fit) = r?;
             fold_fits.push(fit);
             for c in 0..6 {
-                sq[c] += r[c] * r[c] * n as f64;
+                sq[c] += s[c];
+                n_all[c] += n[c];
             }
-            n_all += n;
         }
-        std::array::from_fn(|c| (sq[c] / n_all.max(1) as f64).sqrt())
+        std::array::from_fn(|c| {
+            if n_all[c] == 0 {
+                f64::NAN
+            } else {
+                (sq[c] / n_all[c] as f64).sqrt()
+            }
+        })
     };
     tick(&mut done, "measured the held-out fit".into());
     let fitted = build_params(nominal, &chosen);
@@ -407,6 +418,25 @@ pub fn analyze(
     })
 }
 
+/// The held-out group of each run: runs in a seeded random order, dealt out in turn, so
+/// the groups are as even as the runs allow and a test day driven in a fixed cycle of
+/// manoeuvres does not put every run of one manoeuvre in one group (run `k` in group
+/// `k mod 3` held out all the speed steps of a step, arc, speed-step day together, and a
+/// steering gain fitted without them was vetoed by them).
+fn run_groups(n_runs: usize, folds: usize, seed: u64) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..n_runs).collect();
+    let mut rng = paddock_sim::rng::Rng::new(seed ^ 0x5eed_f01d);
+    for i in (1..n_runs).rev() {
+        let j = ((rng.uniform() * (i + 1) as f64) as usize).min(i);
+        order.swap(i, j);
+    }
+    let mut group = vec![0; n_runs];
+    for (pos, run) in order.into_iter().enumerate() {
+        group[run] = pos % folds.max(1);
+    }
+    group
+}
+
 /// Shrink a friction patch to the recorded positions inside it (plus a small margin,
 /// never past the fitted box): the fit cannot see beyond where the car drove, so the
 /// smallest box with the same evidence is the honest answer.
@@ -426,4 +456,22 @@ fn tighten_patch(rec: &Recording, v: &mut [f64]) {
     v[2] = (b[1] - MARGIN_M).max(ymin);
     v[3] = (b[2] + MARGIN_M).min(xmax);
     v[4] = (b[3] + MARGIN_M).min(ymax);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::run_groups;
+
+    #[test]
+    fn run_groups_are_even_and_do_not_follow_a_manoeuvre_cycle() {
+        let g = run_groups(12, 3, 1);
+        for f in 0..3 {
+            assert_eq!(g.iter().filter(|x| **x == f).count(), 4, "{g:?}");
+        }
+        // a day driven as step, arc, speed-step, step, ...: some group mixes manoeuvres
+        let cyclic = (0..12).any(|k| g[k] != g[k % 3]);
+        assert!(cyclic, "{g:?}");
+        assert_eq!(g, run_groups(12, 3, 1), "deterministic per seed");
+        assert_eq!(run_groups(2, 3, 7).len(), 2);
+    }
 }

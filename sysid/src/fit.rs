@@ -227,6 +227,11 @@ impl FitContext<'_> {
             .map(|(x, (lo, hi))| x.clamp(*lo, *hi))
             .collect();
         let f0 = objective(&x0);
+        if x0.len() == 1 {
+            let evals = ((evals as f64) * self.effort).max(8.0) as usize;
+            let (x, f) = line_search(&|v: f64| objective(&[v]), bounds[0], (x0[0], f0), evals);
+            return Ok((make(&[x]), f));
+        }
         let options = Options::new(x0.clone(), Sigma0::FractionOfWidth(0.2))
             .with_bounds(bounds)
             .with_seed(self.seed)
@@ -357,6 +362,79 @@ impl FitContext<'_> {
     }
 }
 
+/// Points of the coarse grid of a one-parameter fit.
+const LINE_GRID: usize = 9;
+
+/// A one-parameter fit: a grid over the bounds (evaluated in parallel), then golden-section
+/// search in the grid cells beside the best point, `evals` evaluations in all; never worse
+/// than the start `(x0, f0)`. CMA-ES is rank-based: on a smooth one-dimensional cost its
+/// few generations within the budget ended on the same sample for every data set (a
+/// backlash of 0.0446 fitted for a true 0.05 on seven test days of ten), which the
+/// intervals then failed to cover.
+fn line_search(
+    f: &(dyn Fn(f64) -> f64 + Sync),
+    (lo, hi): (f64, f64),
+    (x0, f0): (f64, f64),
+    evals: usize,
+) -> (f64, f64) {
+    let grid: Vec<f64> = (0..LINE_GRID)
+        .map(|i| lo + (hi - lo) * i as f64 / (LINE_GRID - 1) as f64)
+        .collect();
+    let costs: Vec<f64> = grid.par_iter().map(|&x| f(x)).collect();
+    let mut best = (x0, f0);
+    let mut k_best = 0;
+    for (k, (&x, &c)) in grid.iter().zip(&costs).enumerate() {
+        if c < best.1 {
+            best = (x, c);
+            k_best = k;
+        }
+        if c < costs[k_best] {
+            k_best = k;
+        }
+    }
+    // the bracket: the grid cells on either side of the best grid point (or of the start)
+    let centre = if best.0 == x0 && f0 <= costs[k_best] {
+        x0
+    } else {
+        grid[k_best]
+    };
+    let cell = (hi - lo) / (LINE_GRID - 1) as f64;
+    let (mut a, mut b) = ((centre - cell).max(lo), (centre + cell).min(hi));
+    let phi = 0.5 * (5f64.sqrt() - 1.0);
+    let mut c = b - phi * (b - a);
+    let mut d = a + phi * (b - a);
+    let (mut fc, mut fd) = (f(c), f(d));
+    for (x, v) in [(c, fc), (d, fd)] {
+        if v < best.1 {
+            best = (x, v);
+        }
+    }
+    let mut left = evals.saturating_sub(LINE_GRID + 2);
+    while left > 0 && b - a > 1e-6 * (hi - lo) {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - phi * (b - a);
+            fc = f(c);
+            if fc < best.1 {
+                best = (c, fc);
+            }
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + phi * (b - a);
+            fd = f(d);
+            if fd < best.1 {
+                best = (d, fd);
+            }
+        }
+        left -= 1;
+    }
+    best
+}
+
 /// Relative increase of a block's held-out cost that counts as "worse" (on top of the
 /// noise of the cost, [`WORSE_NOISE_SIGMAS`] standard deviations).
 const WORSE_TOLERANCE: f64 = 1e-3;
@@ -380,5 +458,26 @@ pub fn evidence_params(kind: EffectKind) -> usize {
     match kind {
         EffectKind::FrictionPatch => 2,
         k => k.n_params(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn line_search_finds_a_minimum_between_grid_points_and_keeps_a_better_start() {
+        // a minimum at 0.0503, between the grid points of [0, 0.15] (every 0.01875)
+        let f = |x: f64| (x - 0.0503).powi(2) + 1.0;
+        let (x, v) = line_search(&f, (0.0, 0.15), (0.005, f(0.005)), 30);
+        assert!((x - 0.0503).abs() < 1e-4, "{x}");
+        assert!(v <= f(0.0503) + 1e-8);
+        // a start better than anything the search sees is returned as it is
+        let spike = |x: f64| if x == 0.123 { 0.0 } else { 1.0 + x };
+        let (x, v) = line_search(&spike, (0.0, 0.15), (0.123, 0.0), 30);
+        assert_eq!((x, v), (0.123, 0.0));
+        // a minimum on a bound
+        let (x, _) = line_search(&|x: f64| x, (0.6, 1.4), (1.0, 1.0), 30);
+        assert!((x - 0.6).abs() < 1e-4, "{x}");
     }
 }

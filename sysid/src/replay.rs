@@ -346,6 +346,20 @@ impl Residuals {
     /// Root mean square per channel over the samples whose window passes `keep`.
     /// NaN for a channel never measured there.
     pub fn rmse(&self, keep: impl Fn(usize) -> bool) -> [f64; 6] {
+        let (sum, n) = self.sum_sq(keep);
+        std::array::from_fn(|c| {
+            if n[c] == 0 {
+                f64::NAN
+            } else {
+                (sum[c] / n[c] as f64).sqrt()
+            }
+        })
+    }
+
+    /// Per channel: the sum of squared residuals and the number of measured samples over
+    /// the samples whose window passes `keep` (pooling blocks where a channel is measured
+    /// in some only).
+    pub fn sum_sq(&self, keep: impl Fn(usize) -> bool) -> ([f64; 6], [usize; 6]) {
         let mut sum = [0.0; 6];
         let mut n = [0usize; 6];
         for (r, &w) in self.values.iter().zip(&self.window) {
@@ -358,13 +372,7 @@ impl Residuals {
                 }
             }
         }
-        std::array::from_fn(|c| {
-            if n[c] == 0 {
-                f64::NAN
-            } else {
-                (sum[c] / n[c] as f64).sqrt()
-            }
-        })
+        (sum, n)
     }
 }
 

@@ -196,17 +196,38 @@ pub fn ambiguities(rounds: &[Vec<Evidence>], chosen: &[Fitted]) -> Vec<String> {
             continue;
         }
         let names: Vec<&str> = rivals.iter().map(|e| e.kind.name()).collect();
+        // every kept effect of the family, in the order kept: a later round may have
+        // added another one (a pose latency taking up part of a delay and a lag)
+        let kept: Vec<&str> = chosen
+            .iter()
+            .filter(|c| CONFUSABLE[g].contains(&c.kind))
+            .map(|c| c.kind.name())
+            .collect();
+        // every rival kept too (a later round added it, fitted jointly): they trade off,
+        // but the data did separate them
+        let all_kept = rivals
+            .iter()
+            .all(|e| chosen.iter().any(|c| c.kind == e.kind));
         let mut line = format!(
-            "{} and {} are not separable here (held-out gain {:.0} % vs {}); kept {}",
+            "{} and {} {} (held-out gain {:.0} % vs {}); kept {}",
             best.kind.name(),
             names.join(", "),
+            if all_kept {
+                "trade off here, and were told apart only by fitting them jointly"
+            } else {
+                "are not separable here"
+            },
             100.0 * best.gain,
             rivals
                 .iter()
                 .map(|e| format!("{:.0} %", 100.0 * e.gain))
                 .collect::<Vec<_>>()
                 .join(", "),
-            best.kind.name()
+            if kept.is_empty() {
+                best.kind.name().to_string()
+            } else {
+                kept.join(" + ")
+            }
         );
         if g == 0 {
             let dead: f64 = chosen
@@ -271,4 +292,69 @@ pub fn profile(
         last
     };
     Some([side(-1.0), side(1.0)])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn evidence(kind: EffectKind, gain: f64) -> Evidence {
+        Evidence {
+            kind,
+            values: vec![0.05],
+            fitted: Fitted::new(kind, vec![0.05]),
+            heldout_base: vec![100.0; 3],
+            heldout_with: vec![100.0 * (1.0 - gain); 3],
+            gain,
+            folds_improved: 3,
+            folds_worse: 0,
+            margin: 0.03,
+            significant: true,
+        }
+    }
+
+    /// A lag kept in round 1 with a delay close behind, then a pose latency kept in round
+    /// 2: the ambiguity names both kept effects of the family and their total dead time
+    /// (it named only the lag, while the dead time counted the latency too).
+    #[test]
+    fn an_ambiguity_names_every_kept_effect_of_its_family() {
+        let rounds = vec![
+            vec![
+                evidence(EffectKind::SteeringLag, 0.77),
+                evidence(EffectKind::SteeringDelay, 0.75),
+                evidence(EffectKind::SteeringGain, 0.1),
+            ],
+            vec![evidence(EffectKind::MeasurementDelay, 0.05)],
+        ];
+        let chosen = vec![
+            Fitted::new(EffectKind::SteeringLag, vec![0.107]),
+            Fitted::new(EffectKind::MeasurementDelay, vec![0.032]),
+        ];
+        let lines = ambiguities(&rounds, &chosen);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        let l = &lines[0];
+        assert!(
+            l.starts_with("steering_lag and steering_delay are not separable"),
+            "{l}"
+        );
+        assert!(l.contains("kept steering_lag + measurement_delay"), "{l}");
+        assert!(l.contains("effective delay of 0.139 s"), "{l}");
+        // both kept: they trade off, but were separated
+        let both = vec![
+            Fitted::new(EffectKind::SteeringLag, vec![0.078]),
+            Fitted::new(EffectKind::SteeringDelay, vec![0.06]),
+        ];
+        let lines = ambiguities(&rounds[..1], &both);
+        assert!(
+            lines[0].contains("trade off here, and were told apart")
+                && lines[0].contains("kept steering_lag + steering_delay"),
+            "{lines:?}"
+        );
+        // a clear winner: no ambiguity
+        let clear = vec![vec![
+            evidence(EffectKind::SteeringLag, 0.77),
+            evidence(EffectKind::SteeringDelay, 0.3),
+        ]];
+        assert!(ambiguities(&clear, &chosen[..1]).is_empty());
+    }
 }
