@@ -4,15 +4,17 @@
 //! frames, fingerprint them), next to the same 64 worlds stepped by `Worlds::step`
 //! writing their scans into one packed buffer: the simulator's own cost. Standing cars,
 //! as `client-py/benchmarks/env_steps.py` drives them, on one thread (the rayon pool
-//! is built with one thread, as a worker pinned to one core has).
+//! is built with one thread, as a worker pinned to one core has). The times are the
+//! thread's CPU time, so other processes on a busy machine do not count against them.
 
 use criterion::{Criterion, Throughput};
-use paddock_proto::{EnvOp, EnvOpen, EnvStep, Lidar, pack_f32};
+use paddock_proto::{EnvOp, EnvOpen, EnvReset, EnvStep, Lidar, pack_f32};
 use paddock_sim::circuit::Circuits;
 use paddock_sim::world::{Action, PackedObservations, Worlds};
 use paddock_worker::sessions::Sessions;
 use prost::Message;
 use std::hint::black_box;
+use std::time::Duration;
 
 const ENVS: usize = 64;
 const BEAMS: u32 = 1080;
@@ -54,7 +56,12 @@ fn bench(c: &mut Criterion) {
     .encode_to_vec();
     // the simulator alone: the session's 64 worlds, as they are after its reset
     let mut worlds = {
-        let reply = sessions.handle(1, EnvOp::EnvReset as i32, &[]);
+        // seeds 0..64, as the Python bench's `reset(seed=0)`: the same start poses
+        let reset = EnvReset {
+            seeds: (0..ENVS as u64).collect(),
+            ..Default::default()
+        };
+        let reply = sessions.handle(1, EnvOp::EnvReset as i32, &reset.encode_to_vec());
         assert!(reply.header.error.is_none(), "{:?}", reply.header.error);
         sessions_worlds(&sessions)
     };
@@ -63,17 +70,35 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("env_step_64x1080");
     g.throughput(Throughput::Elements(ENVS as u64));
     g.bench_function("worlds_step", |b| {
-        b.iter(|| {
-            let mut out = PackedObservations::scans(&mut scans, 1);
-            worlds
-                .step(black_box(&actions), &[], Some(&mut out))
-                .unwrap();
+        b.iter_custom(|iters| {
+            let t0 = thread_cpu();
+            for _ in 0..iters {
+                let mut out = PackedObservations::scans(&mut scans, 1);
+                worlds
+                    .step(black_box(&actions), &[], Some(&mut out))
+                    .unwrap();
+            }
+            thread_cpu() - t0
         })
     });
     g.bench_function("session_handle", |b| {
-        b.iter(|| black_box(sessions.handle(1, EnvOp::EnvStep as i32, black_box(&step))))
+        b.iter_custom(|iters| {
+            let t0 = thread_cpu();
+            for _ in 0..iters {
+                black_box(sessions.handle(1, EnvOp::EnvStep as i32, black_box(&step)));
+            }
+            thread_cpu() - t0
+        })
     });
     g.finish();
+}
+
+/// This thread's CPU time so far.
+fn thread_cpu() -> Duration {
+    use nix::time::{ClockId, clock_gettime};
+    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(Duration::from)
+        .expect("this thread's CPU clock")
 }
 
 /// A copy of session 1's worlds (the bench's own batch, stepped without the session).
