@@ -1,12 +1,15 @@
 //! `paddock perf`: the simulator's speed on one thread.
 //!
 //! Cars driven by pure pursuit lap the map (episodes restart from seeded random starts);
-//! only the time inside `World::step` is counted, so the figure is the simulator's own
+//! only the time inside `World::step` is counted (this thread's CPU time, so other
+//! processes on the machine do not count against it), so the figure is the simulator's own
 //! cost: dynamics, collisions, laps and (unless disabled) the 1080-beam LIDAR of every
 //! car. Rays/s times the LIDAR alone from poses recorded on the track. The report names
 //! the map and the LIDAR's code path and the CPU's SIMD features, since the scan's speed
 //! depends on them (`--scan-path` forces a narrower path, to measure what a CPU without
-//! AVX-512 gets).
+//! AVX-512 gets). `--worlds N` steps N worlds of `--agents` cars as one batch
+//! (`Worlds::step`, the way an env session of N envs steps them, each world's scans
+//! written into one packed buffer), still on one thread.
 
 use std::time::{Duration, Instant};
 
@@ -18,7 +21,7 @@ use paddock_sim::circuit::{Circuit, Circuits, DEFAULT_MAP};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
-use paddock_sim::world::{Action, Starts, World, WorldConfig};
+use paddock_sim::world::{Action, PackedObservations, Starts, World, WorldConfig, Worlds};
 use serde::Serialize;
 
 #[derive(Args)]
@@ -29,6 +32,9 @@ pub struct PerfArgs {
     /// Number of cars stepped together.
     #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 64))]
     agents: usize,
+    /// Worlds (of `--agents` cars each) stepped as one batch, as an env session's envs.
+    #[arg(long, default_value_t = 1, value_parser = args::whole::<usize>(1, 1024))]
+    worlds: usize,
     /// Skip the measurements with the LIDAR scan.
     #[arg(long)]
     no_scan: bool,
@@ -60,6 +66,7 @@ struct PerfReport {
     /// The CPU's SIMD features, space-separated.
     cpu_features: String,
     agents: usize,
+    worlds: usize,
     agent_steps_per_s_scan: Option<f64>,
     agent_steps_per_s_noscan: f64,
     rays_per_s: Option<f64>,
@@ -74,10 +81,14 @@ struct Run {
 fn drive(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
+    worlds: usize,
     scan: Option<ScanPath>,
     seconds: f64,
     vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<Run> {
+    if worlds > 1 {
+        return drive_batch(circuit, agents, worlds, scan, seconds, vehicle);
+    }
     let mut config = WorldConfig::with_agents(agents);
     config.collision_mode = CollisionMode::Stop;
     for a in &mut config.agents {
@@ -113,10 +124,84 @@ fn drive(
                 }
                 actions[i] = d.act(obs, i);
             }
-            let t0 = Instant::now();
+            let t0 = thread_cpu();
             world.step(&actions)?;
-            busy += t0.elapsed();
+            busy += thread_cpu().saturating_sub(t0);
             agent_steps += agents as u64;
+        }
+    }
+    Ok(Run {
+        agent_steps,
+        busy,
+        poses,
+    })
+}
+
+/// This thread's CPU time so far.
+fn thread_cpu() -> Duration {
+    use nix::time::{ClockId, clock_gettime};
+    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID).map_or(Duration::ZERO, Duration::from)
+}
+
+/// [`drive`] for `worlds` worlds stepped as one batch; pure pursuit drives every car.
+fn drive_batch(
+    circuit: &std::sync::Arc<Circuit>,
+    agents: usize,
+    worlds: usize,
+    scan: Option<ScanPath>,
+    seconds: f64,
+    vehicle: &paddock_sim::params::VehicleParams,
+) -> Result<Run> {
+    let mut config = WorldConfig::with_agents(agents);
+    config.collision_mode = CollisionMode::Stop;
+    for a in &mut config.agents {
+        a.scan = scan.is_some();
+        a.params = vehicle.clone();
+    }
+    let mut world = World::new(circuit.clone(), config)?;
+    if let Some(path) = scan {
+        world.set_scan_path(path)?;
+    }
+    let beams = world.config().lidar.num_beams;
+    let mut batch = Worlds::of(&world, worlds);
+    let cars = worlds * agents;
+    let mut drivers: Vec<PurePursuit> = (0..cars)
+        .map(|_| PurePursuit::on_circuit(circuit, PurePursuitParams::default()))
+        .collect();
+    let mut actions = vec![Action::default(); cars];
+    let mut scans = vec![0u8; if scan.is_some() { cars * beams * 4 } else { 0 }];
+    let budget = Duration::from_secs_f64(seconds.max(0.1));
+    let mut busy = Duration::ZERO;
+    let mut agent_steps = 0u64;
+    let mut poses = Vec::new();
+    let mut seed = 0u64;
+    while busy < budget {
+        for w in 0..worlds {
+            batch.reset(w, seed, &Starts::Random)?;
+            seed += 1;
+        }
+        drivers.iter_mut().for_each(Driver::reset);
+        for step in 0..3000u32 {
+            for w in 0..worlds {
+                let obs = batch.world(w).observation()?;
+                for i in 0..agents {
+                    let d = &mut drivers[w * agents + i];
+                    if step.is_multiple_of(16) && poses.len() < 4096 {
+                        poses.push(Pose::new(
+                            obs.poses_x[i],
+                            obs.poses_y[i],
+                            obs.poses_theta[i],
+                        ));
+                    }
+                    actions[w * agents + i] = d.act(obs, i);
+                }
+            }
+            let mut out =
+                PackedObservations::scans(&mut scans, if scan.is_some() { agents } else { 0 });
+            let t0 = thread_cpu();
+            batch.step(&actions, &[], Some(&mut out))?;
+            busy += thread_cpu().saturating_sub(t0);
+            agent_steps += cars as u64;
         }
     }
     Ok(Run {
@@ -144,13 +229,27 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
     let lidar = Lidar::new(LidarConfig::default()).with_path(path)?;
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
-    let noscan = drive(&circuit, args.agents, None, args.seconds, &vehicle)?;
+    let noscan = drive(
+        &circuit,
+        args.agents,
+        args.worlds,
+        None,
+        args.seconds,
+        &vehicle,
+    )?;
     let noscan_rate = noscan.agent_steps as f64 / noscan.busy.as_secs_f64();
     let (scan_rate, rays_rate) = if args.no_scan {
         (None, None)
     } else {
         tracing::info!(map = %circuit.name, agents = args.agents, "measuring with scan");
-        let scan = drive(&circuit, args.agents, Some(path), args.seconds, &vehicle)?;
+        let scan = drive(
+            &circuit,
+            args.agents,
+            args.worlds,
+            Some(path),
+            args.seconds,
+            &vehicle,
+        )?;
         let scan_rate = scan.agent_steps as f64 / scan.busy.as_secs_f64();
         let beams = LidarConfig::default().num_beams;
         let mut out = vec![0.0; beams];
@@ -177,6 +276,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         scan_clearance_loads: path.clearance_loads().to_string(),
         cpu_features: cpu_features(),
         agents: args.agents,
+        worlds: args.worlds,
         agent_steps_per_s_scan: scan_rate,
         agent_steps_per_s_noscan: noscan_rate,
         rays_per_s: rays_rate,
@@ -186,12 +286,13 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         return Ok(());
     }
     outln!(
-        "map {} ({} x {} cells of {} m), {} agent(s), one thread",
+        "map {} ({} x {} cells of {} m), {} agent(s) x {} world(s), one thread",
         report.map,
         report.map_cells[0],
         report.map_cells[1],
         report.map_resolution,
-        report.agents
+        report.agents,
+        report.worlds
     );
     outln!(
         "  LIDAR path {}, clearances by {} (CPU features: {})",

@@ -32,6 +32,22 @@ fn perf_json_has_the_documented_keys() {
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert!(v["agent_steps_per_s_noscan"].as_f64().unwrap() > 0.0);
     assert!(v["agent_steps_per_s_scan"].is_null());
+    // a batch of worlds stepped in one call
+    let (ok, out, err) = paddock(&[
+        "perf",
+        "--json",
+        "--seconds",
+        "0.2",
+        "--agents",
+        "2",
+        "--worlds",
+        "3",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["worlds"], 3, "{out}");
+    assert_eq!(v["agents"], 2, "{out}");
+    assert!(v["agent_steps_per_s_scan"].as_f64().unwrap() > 0.0, "{out}");
 }
 
 #[test]

@@ -24,17 +24,23 @@
 //!   map, cars, LIDAR and obstacles), so learners and benchmarks see the same races.
 //! - **All or nothing.** Requests are checked completely before any copy changes, so a
 //!   bad action leaves the session as it was.
+//! - **One batch.** The copies' worlds are one [`Worlds`]: each call steps them as a
+//!   batch (split into a few runs of copies when rayon has several threads) and writes
+//!   the learners' scans right after each world's step, into the frame or, with
+//!   [`VecEnv::step_packed`], straight into the caller's buffer (an env session's
+//!   reply frame), without allocating per step. Copy `i` gets the same bits whether
+//!   it runs alone, in a batch, or on another thread.
 
 use std::sync::Arc;
 
 use paddock_policy::{build_driver, check_lidar, driver_info};
 use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::geometry::Pose;
-use paddock_sim::world::{Action, World};
-use rayon::prelude::*;
+use paddock_sim::world::{Action, World, Worlds};
 
 use crate::{RolloutError, task_seed};
 
+mod batch;
 mod config;
 mod slot;
 
@@ -44,6 +50,9 @@ pub use config::{
     RewardWeights, STATE_SIZE,
 };
 use slot::{Op, Slot};
+
+/// Bytes of one learner's scan in a packed scans buffer (`f32` little-endian).
+const SCAN_VALUE_BYTES: usize = 4;
 
 /// Every copy's observation after a reset or a step, in flat arrays (env-major), ready
 /// to be packed as bytes. With one learner every per-learner array has one entry per
@@ -114,9 +123,14 @@ impl EnvFrame {
 pub struct VecEnv {
     config: EnvConfig,
     circuit: Arc<Circuit>,
+    worlds: Worlds,
     slots: Vec<Slot>,
     frame: EnvFrame,
     max_steps: u64,
+    /// Reused per call: every car's action, which copies step, the packed scans.
+    cars: Vec<Action>,
+    active: Vec<bool>,
+    packed: Vec<u8>,
 }
 
 impl std::fmt::Debug for VecEnv {
@@ -153,6 +167,7 @@ impl VecEnv {
         let world_config = config.world_config(&scans);
         let world = World::new(circuit.clone(), world_config)?;
         let num_agents = world.num_agents();
+        let worlds = Worlds::of(&world, config.num_envs);
         let mut slots = Vec::with_capacity(config.num_envs);
         for i in 0..config.num_envs {
             let mut opponents = Vec::with_capacity(config.opponents.len());
@@ -167,7 +182,6 @@ impl VecEnv {
                 );
             }
             slots.push(Slot::new(
-                world.clone(),
                 opponents,
                 learners,
                 task_seed(config.seed, i as u64),
@@ -180,12 +194,18 @@ impl VecEnv {
             learners,
             config.lidar.num_beams,
         );
+        let cars = vec![Action::default(); config.num_envs * num_agents];
+        let active = vec![false; config.num_envs];
         let mut env = Self {
             config,
             circuit,
+            worlds,
             slots,
             frame,
             max_steps,
+            cars,
+            active,
+            packed: Vec::new(),
         };
         let ops = vec![
             Op::Reset {
@@ -194,7 +214,7 @@ impl VecEnv {
             };
             env.num_envs()
         ];
-        env.apply(&ops)?;
+        env.call(&ops, &[], None)?;
         Ok(env)
     }
 
@@ -242,7 +262,13 @@ impl VecEnv {
 
     /// The world of copy `i` (for inspection and tests).
     pub fn world(&self, i: usize) -> Option<&World> {
-        self.slots.get(i).map(|s| &s.world)
+        (i < self.worlds.len()).then(|| self.worlds.world(i))
+    }
+
+    /// Bytes of the packed scans of [`VecEnv::step_packed`] and [`VecEnv::reset_packed`]:
+    /// `num_envs x num_learners x num_beams` `f32`.
+    pub fn packed_scans_len(&self) -> usize {
+        self.num_envs() * self.num_learners() * self.num_beams() * SCAN_VALUE_BYTES
     }
 
     /// Reset copies `envs` (empty: all) with `seeds` (empty: each copy's own stream;
@@ -254,6 +280,33 @@ impl VecEnv {
         seeds: &[u64],
         poses: Option<&[Pose]>,
     ) -> Result<&EnvFrame, RolloutError> {
+        let ops = self.reset_ops(envs, seeds, poses)?;
+        self.call(&ops, &[], None)?;
+        Ok(&self.frame)
+    }
+
+    /// [`VecEnv::reset`], with the learners' scans written into `scans`
+    /// ([`VecEnv::packed_scans_len`] bytes of little-endian `f32`, the layout of an env
+    /// session's scans frame) instead of the frame, whose `scans` is left empty.
+    pub fn reset_packed(
+        &mut self,
+        envs: &[usize],
+        seeds: &[u64],
+        poses: Option<&[Pose]>,
+        scans: &mut [u8],
+    ) -> Result<&EnvFrame, RolloutError> {
+        let ops = self.reset_ops(envs, seeds, poses)?;
+        self.call(&ops, &[], Some(scans))?;
+        Ok(&self.frame)
+    }
+
+    /// The ops of a reset request, checked.
+    fn reset_ops(
+        &self,
+        envs: &[usize],
+        seeds: &[u64],
+        poses: Option<&[Pose]>,
+    ) -> Result<Vec<Op>, RolloutError> {
         let n = self.num_envs();
         let targets: Vec<usize> = if envs.is_empty() {
             (0..n).collect()
@@ -314,8 +367,7 @@ impl VecEnv {
                 poses: poses.map(|p| p[j * agents..(j + 1) * agents].to_vec()),
             };
         }
-        self.apply(&ops)?;
-        Ok(&self.frame)
+        Ok(ops)
     }
 
     /// Step every copy with `actions` (`num_envs x num_learners x [steer, speed]`),
@@ -326,6 +378,28 @@ impl VecEnv {
         actions: &[f32],
         reset_envs: &[usize],
     ) -> Result<&EnvFrame, RolloutError> {
+        let ops = self.step_ops(actions, reset_envs)?;
+        self.call(&ops, actions, None)?;
+        Ok(&self.frame)
+    }
+
+    /// [`VecEnv::step`], with the learners' scans written into `scans`
+    /// ([`VecEnv::packed_scans_len`] bytes of little-endian `f32`, the layout of an env
+    /// session's scans frame) instead of the frame, whose `scans` is left empty: each
+    /// scan is written once, right after its world's step.
+    pub fn step_packed(
+        &mut self,
+        actions: &[f32],
+        reset_envs: &[usize],
+        scans: &mut [u8],
+    ) -> Result<&EnvFrame, RolloutError> {
+        let ops = self.step_ops(actions, reset_envs)?;
+        self.call(&ops, actions, Some(scans))?;
+        Ok(&self.frame)
+    }
+
+    /// The ops of a step request, checked.
+    fn step_ops(&self, actions: &[f32], reset_envs: &[usize]) -> Result<Vec<Op>, RolloutError> {
         let n = self.num_envs();
         let l = self.num_learners();
         let shape = if l == 1 {
@@ -353,16 +427,7 @@ impl VecEnv {
                 &format!("{whose} {what} must be a finite number"),
             );
         }
-        let mut ops: Vec<Op> = actions
-            .chunks_exact(2 * l)
-            .map(|env| {
-                Op::Step(
-                    env.chunks_exact(2)
-                        .map(|a| Action::new(f64::from(a[0]), f64::from(a[1])))
-                        .collect(),
-                )
-            })
-            .collect();
+        let mut ops = vec![Op::Step; n];
         for (j, &i) in reset_envs.iter().enumerate() {
             if i >= n {
                 return invalid(
@@ -376,46 +441,67 @@ impl VecEnv {
                 poses: None,
             };
         }
-        self.apply(&ops)?;
-        Ok(&self.frame)
+        Ok(ops)
     }
 
-    /// Run `ops` (one per copy; in parallel for several copies) and refresh the frame.
-    fn apply(&mut self, ops: &[Op]) -> Result<(), RolloutError> {
-        let config = &self.config;
-        let max_steps = self.max_steps;
-        let beams = self.frame.num_beams;
-        let chunk = beams * self.frame.num_learners;
-        // each copy writes its learners' scans while still on its thread
-        let run = |((s, op), out): ((&mut Slot, &Op), &mut [f32])| {
-            let r = s.apply(op, config, max_steps);
-            s.write_scans(out, beams);
-            r
-        };
-        let results: Vec<Result<(), RolloutError>> = if self.slots.len() > 1 {
-            self.slots
-                .par_iter_mut()
-                .zip(ops.par_iter())
-                .zip(self.frame.scans.par_chunks_mut(chunk))
-                .map(run)
-                .collect()
-        } else {
-            self.slots
-                .iter_mut()
-                .zip(ops)
-                .zip(self.frame.scans.chunks_mut(chunk))
-                .map(run)
-                .collect()
+    /// Run `ops` (one per copy) with the learners' `actions` of the stepped copies, write
+    /// the scans into `scans` (else into the frame) and refresh the frame.
+    fn call(
+        &mut self,
+        ops: &[Op],
+        actions: &[f32],
+        scans: Option<&mut [u8]>,
+    ) -> Result<(), RolloutError> {
+        let len = self.packed_scans_len();
+        let result = match scans {
+            Some(out) => {
+                if out.len() != len {
+                    return invalid(
+                        "scans",
+                        format!("{} bytes", out.len()),
+                        &format!("expected num_envs x learners x beams x 4 = {len} bytes"),
+                    );
+                }
+                self.frame.scans.clear();
+                self.apply(ops, actions, out)
+            }
+            None => {
+                let mut packed = std::mem::take(&mut self.packed);
+                packed.resize(len, 0);
+                let result = self.apply(ops, actions, &mut packed);
+                self.frame.scans.clear();
+                self.frame.scans.extend(
+                    packed
+                        .chunks_exact(SCAN_VALUE_BYTES)
+                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+                );
+                self.packed = packed;
+                result
+            }
         };
         self.refresh();
-        results.into_iter().collect()
+        result
+    }
+
+    /// Run `ops` on the batch of worlds (see [`batch`]).
+    fn apply(&mut self, ops: &[Op], actions: &[f32], scans: &mut [u8]) -> Result<(), RolloutError> {
+        let run = batch::Run {
+            slots: &mut self.slots,
+            worlds: self.worlds.batch_mut(),
+            ops,
+            actions,
+            cars: &mut self.cars,
+            active: &mut self.active,
+            scans,
+        };
+        run.apply(&self.config, self.max_steps)
     }
 
     fn refresh(&mut self) {
         let f = &mut self.frame;
         let (agents, learners) = (f.num_agents, f.num_learners);
-        for (i, slot) in self.slots.iter().enumerate() {
-            let Ok(state) = slot.world.state() else {
+        for (i, (slot, world)) in self.slots.iter().zip(self.worlds.iter()).enumerate() {
+            let Ok(state) = world.state() else {
                 continue;
             };
             let obs = &state.observation;

@@ -186,10 +186,17 @@ fn bytes_of(flags: &[bool]) -> Vec<u8> {
 }
 
 /// The payload frames of an observation: the [`EnvObservation`] message (everything but
-/// the scans) and the scans as packed little-endian f32, `num_envs x num_beams`. The
-/// scans are packed once, here, into the frame that goes on the socket.
+/// the scans) and the scans as packed little-endian f32, `num_envs x num_beams`, copied
+/// from the frame (an env session has its worlds write the scans frame directly:
+/// [`observation_meta`]).
 pub fn observation_frames(f: &EnvFrame) -> (EnvObservation, Vec<u8>) {
-    let meta = EnvObservation {
+    (observation_meta(f), pack_f32(&f.scans))
+}
+
+/// The `EnvObservation` message of a frame (everything but the scans, whose frame an
+/// env session writes itself: [`VecEnv::step_packed`]).
+pub fn observation_meta(f: &EnvFrame) -> EnvObservation {
+    EnvObservation {
         num_envs: u32_of(f.num_envs),
         states: pack_f64(&f.states),
         rewards: pack_f64(&f.rewards),
@@ -201,8 +208,7 @@ pub fn observation_frames(f: &EnvFrame) -> (EnvObservation, Vec<u8>) {
         agent_collisions: bytes_of(&f.agent_collisions),
         agent_lap_counts: pack_u32(&f.agent_lap_counts),
         agent_lap_times: pack_f64(&f.agent_lap_times),
-    };
-    (meta, pack_f32(&f.scans))
+    }
 }
 
 /// The wire error of an env session's failure, with the field as the client named it

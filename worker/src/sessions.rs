@@ -4,9 +4,10 @@
 //! its payload frame) to [`Sessions::handle`] and sends back the [`EnvReply`] header and
 //! payload frames it returns, under the same request id. A session is one [`VecEnv`] (N
 //! copies of one environment) under the id the broker gave it at open; its observations
-//! travel as two frames: the small `EnvObservation` message and the scans, packed once
-//! into the frame that goes on the socket, so a Python learner reads them with
-//! `numpy.frombuffer` and nobody copies them on the way.
+//! travel as two frames: the small `EnvObservation` message and the scans, written once,
+//! by each world right after its step ([`VecEnv::step_packed`]), into the frame that
+//! goes on the socket, so a Python learner reads them with `numpy.frombuffer` and nobody
+//! copies them on the way.
 //!
 //! Why it looks like this:
 //! - Protobuf stops here: requests become an [`EnvConfig`] and slices through
@@ -108,6 +109,11 @@ impl Sessions {
     /// Cars whose request carries the default vehicle get `vehicle` instead.
     pub fn set_default_vehicle(&mut self, vehicle: VehicleParams) {
         self.vehicle = (vehicle != VehicleParams::default()).then_some(vehicle);
+    }
+
+    /// The env of session `id`, when it is open here.
+    pub fn env(&self, id: u64) -> Option<&VecEnv> {
+        self.open.get(&id)
     }
 
     /// How many sessions are open.
@@ -218,9 +224,15 @@ impl Sessions {
         let env = self.open.get_mut(&id).ok_or_else(|| unknown_session(id))?;
         let reset = paddock_wire::env::reset_from_proto(r)?;
         let all = reset.restarts_all(env.num_envs());
+        let mut scans = vec![0; env.packed_scans_len()];
         let result = guarded(|| {
-            env.reset(&reset.envs, &reset.seeds, reset.poses.as_deref())
-                .map(observation)
+            env.reset_packed(
+                &reset.envs,
+                &reset.seeds,
+                reset.poses.as_deref(),
+                &mut scans,
+            )
+            .map(|f| observation(f, scans))
         });
         self.finish(id, "env_reset", result).map(|f| (f, all))
     }
@@ -229,7 +241,11 @@ impl Sessions {
         let env = self.open.get_mut(&id).ok_or_else(|| unknown_session(id))?;
         let (actions, reset) =
             paddock_wire::env::step_from_proto(s, env.num_envs(), env.num_learners())?;
-        let result = guarded(|| env.step(&actions, &reset).map(observation));
+        let mut scans = vec![0; env.packed_scans_len()];
+        let result = guarded(|| {
+            env.step_packed(&actions, &reset, &mut scans)
+                .map(|f| observation(f, scans))
+        });
         self.finish(id, "env_step", result)
     }
 
@@ -350,10 +366,12 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, Error> {
     })
 }
 
-/// The payload frames of an observation.
-fn observation(f: &paddock_rollout::env::EnvFrame) -> Vec<Vec<u8>> {
-    let (meta, scans) = paddock_wire::env::observation_frames(f);
-    vec![meta.encode_to_vec(), scans]
+/// The payload frames of an observation whose learners' scans `scans` holds packed.
+fn observation(f: &paddock_rollout::env::EnvFrame, scans: Vec<u8>) -> Vec<Vec<u8>> {
+    vec![
+        paddock_wire::env::observation_meta(f).encode_to_vec(),
+        scans,
+    ]
 }
 
 #[cfg(test)]

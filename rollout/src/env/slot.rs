@@ -1,19 +1,19 @@
-//! One copy of the environment: its world, its opponents' drivers, its seed stream and
-//! what its learners got from the last call.
+//! One copy of the environment beside its world: its opponents' drivers, its seed
+//! stream and what its learners got from the last call. The copies' worlds live together
+//! in the env's [`Worlds`](paddock_sim::world::Worlds); each call hands a slot its own.
 
 use paddock_policy::Driver;
 use paddock_sim::geometry::Pose;
-use paddock_sim::world::{Action, AgentStatus, Starts, World};
+use paddock_sim::world::{Action, AgentStatus, Starts, StepEvents, World};
 
-use super::EnvConfig;
 use crate::{RolloutError, task_seed};
 
 /// What to do with one copy in a call.
 #[derive(Debug, Clone)]
 pub(super) enum Op {
     Keep,
-    /// One action per learner car.
-    Step(Vec<Action>),
+    /// Step with this copy's learner actions (from the call's action slice).
+    Step,
     Reset {
         seed: Option<u64>,
         poses: Option<Vec<Pose>>,
@@ -22,9 +22,7 @@ pub(super) enum Op {
 
 /// One copy. Cars `0..learners` are the learners', the rest the opponents'.
 pub(super) struct Slot {
-    pub(super) world: World,
     pub(super) opponents: Vec<Box<dyn Driver>>,
-    pub(super) actions: Vec<Action>,
     pub(super) seed_base: u64,
     pub(super) episodes: u64,
     /// Per learner: the last step's reward.
@@ -37,17 +35,9 @@ pub(super) struct Slot {
 }
 
 impl Slot {
-    pub(super) fn new(
-        world: World,
-        opponents: Vec<Box<dyn Driver>>,
-        learners: usize,
-        seed_base: u64,
-    ) -> Self {
-        let cars = world.num_agents();
+    pub(super) fn new(opponents: Vec<Box<dyn Driver>>, learners: usize, seed_base: u64) -> Self {
         Self {
-            world,
             opponents,
-            actions: vec![Action::default(); cars],
             seed_base,
             episodes: 0,
             rewards: vec![0.0; learners],
@@ -63,32 +53,12 @@ impl Slot {
         self.truncated || self.done.iter().all(|&d| d)
     }
 
-    pub(super) fn apply(
+    pub(super) fn reset(
         &mut self,
-        op: &Op,
-        config: &EnvConfig,
-        max_steps: u64,
+        world: &mut World,
+        seed: Option<u64>,
+        poses: Option<Vec<Pose>>,
     ) -> Result<(), RolloutError> {
-        match op {
-            Op::Keep => Ok(()),
-            Op::Step(a) => self.step(a, config, max_steps),
-            Op::Reset { seed, poses } => self.reset(*seed, poses.clone()),
-        }
-    }
-
-    /// The learners' scans as `f32`, learner-major (noise can dip a range below zero:
-    /// clamped to 0).
-    pub(super) fn write_scans(&self, out: &mut [f32], beams: usize) {
-        if let Ok(state) = self.world.state() {
-            for (k, dst) in out.chunks_exact_mut(beams).enumerate() {
-                for (d, &r) in dst.iter_mut().zip(state.observation.scan(k)) {
-                    *d = r.max(0.0) as f32;
-                }
-            }
-        }
-    }
-
-    fn reset(&mut self, seed: Option<u64>, poses: Option<Vec<Pose>>) -> Result<(), RolloutError> {
         let world_seed = match seed {
             Some(s) => {
                 self.seed_base = s;
@@ -102,7 +72,7 @@ impl Slot {
             }
         };
         let starts = poses.map_or(Starts::Random, Starts::Poses);
-        self.world.reset(world_seed, &starts)?;
+        world.reset(world_seed, &starts)?;
         for d in &mut self.opponents {
             d.reset();
         }
@@ -112,58 +82,77 @@ impl Slot {
         Ok(())
     }
 
-    /// `frame_skip` physics steps with the learners' `actions` held; a learner out of the
-    /// race gets no reward and its action is not used.
-    fn step(
-        &mut self,
-        actions: &[Action],
-        config: &EnvConfig,
-        max_steps: u64,
-    ) -> Result<(), RolloutError> {
+    /// The start of a step of `frame_skip` physics steps: the rewards start from 0;
+    /// whether the copy steps at all (an ended copy stays as it is).
+    pub(super) fn begin_step(&mut self) -> bool {
         self.rewards.iter_mut().for_each(|r| *r = 0.0);
-        if self.ended() {
-            return Ok(());
+        !self.ended()
+    }
+
+    /// Before a physics step: note each learner's progress and write every car's action
+    /// into `cars` (the learners' `learner` actions, `[steer, speed]` as `f32`; a
+    /// learner out of the race stands still; the opponents' drivers act on the world's
+    /// observation).
+    pub(super) fn prepare(
+        &mut self,
+        world: &World,
+        learner: &[f32],
+        cars: &mut [Action],
+    ) -> Result<(), RolloutError> {
+        let state = world.state()?;
+        for (b, a) in self.progress_before.iter_mut().zip(&state.agents) {
+            *b = a.laps.progress;
         }
-        let w = config.reward;
-        let dt = self.world.config().dt;
-        let learners = actions.len();
-        for _ in 0..config.frame_skip {
-            let state = self.world.state()?;
-            for (b, a) in self.progress_before.iter_mut().zip(&state.agents) {
-                *b = a.laps.progress;
-            }
-            for (k, a) in actions.iter().enumerate() {
-                self.actions[k] = if self.done[k] { Action::default() } else { *a };
-            }
-            for (j, d) in self.opponents.iter_mut().enumerate() {
-                let i = learners + j;
-                self.actions[i] = if state.agents[i].status == AgentStatus::Racing {
-                    d.act(&state.observation, i)
-                } else {
-                    Action::default()
-                };
-            }
-            let events = self.world.step(&self.actions)?;
-            let state = self.world.state()?;
-            for (k, progress_before) in self.progress_before.iter().enumerate() {
-                if self.done[k] {
-                    continue;
-                }
-                let car = &state.agents[k];
-                self.rewards[k] += w.progress * (car.laps.progress - progress_before)
-                    + w.collision * f64::from(u8::from(events.collided[k]))
-                    + w.lap * f64::from(u8::from(events.lap_completed[k]))
-                    + w.time * dt;
-                self.done[k] = car.status != AgentStatus::Racing;
-            }
-            if self.done.iter().all(|&d| d) {
-                break;
-            }
-            if state.steps >= max_steps {
-                self.truncated = true;
-                break;
-            }
+        let learners = self.done.len();
+        for (k, a) in learner.chunks_exact(2).enumerate() {
+            cars[k] = if self.done[k] {
+                Action::default()
+            } else {
+                Action::new(f64::from(a[0]), f64::from(a[1]))
+            };
         }
+        for (j, d) in self.opponents.iter_mut().enumerate() {
+            let i = learners + j;
+            cars[i] = if state.agents[i].status == AgentStatus::Racing {
+                d.act(&state.observation, i)
+            } else {
+                Action::default()
+            };
+        }
+        world.check_actions(cars)?;
         Ok(())
+    }
+
+    /// After a physics step: each learner's reward and end; whether the copy goes on
+    /// with the next physics step of the call.
+    pub(super) fn finish(
+        &mut self,
+        world: &World,
+        events: &StepEvents,
+        config: &super::EnvConfig,
+        max_steps: u64,
+    ) -> Result<bool, RolloutError> {
+        let w = config.reward;
+        let dt = world.config().dt;
+        let state = world.state()?;
+        for (k, progress_before) in self.progress_before.iter().enumerate() {
+            if self.done[k] {
+                continue;
+            }
+            let car = &state.agents[k];
+            self.rewards[k] += w.progress * (car.laps.progress - progress_before)
+                + w.collision * f64::from(u8::from(events.collided[k]))
+                + w.lap * f64::from(u8::from(events.lap_completed[k]))
+                + w.time * dt;
+            self.done[k] = car.status != AgentStatus::Racing;
+        }
+        if self.done.iter().all(|&d| d) {
+            return Ok(false);
+        }
+        if state.steps >= max_steps {
+            self.truncated = true;
+            return Ok(false);
+        }
+        Ok(true)
     }
 }

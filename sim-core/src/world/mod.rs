@@ -10,12 +10,14 @@
 //! serialisable data: [`World::snapshot`] and [`World::restore`] copy it whole, so an
 //! episode can be replayed or resumed from any step with identical bits.
 
+mod batch;
 mod config;
 mod placement;
 mod state;
 
 use std::sync::Arc;
 
+pub use batch::{PACKED_STATE, PackedObservations, Worlds, WorldsMut};
 pub use config::{AgentConfig, ObstacleConfig, WorldConfig, WorldError};
 pub use state::{Action, AgentState, AgentStatus, Observation, Starts, StepEvents, WorldState};
 
@@ -28,22 +30,29 @@ use crate::rng::Rng;
 use crate::track::LapCounter;
 
 /// N cars on one circuit.
+///
+/// A clone shares the circuit and the LIDAR's tables with the original (both are
+/// read-only), so the worlds of a vector env ([`Worlds`]) read one copy of them.
 #[derive(Debug, Clone)]
 pub struct World {
     circuit: Arc<Circuit>,
     config: WorldConfig,
-    lidar: Lidar,
+    lidar: Arc<Lidar>,
     state: Option<WorldState>,
     /// Reused buffers: every car's box, and the shapes one car's LIDAR sees.
     shapes: Vec<Obb>,
     present: Vec<bool>,
     seen: Vec<Obb>,
+    /// Reused buffers of a step: each car's vehicle before it (Stop mode), and which
+    /// cars hit something.
+    before: Vec<Option<Vehicle>>,
+    hit: Vec<bool>,
 }
 
 impl World {
     pub fn new(circuit: Arc<Circuit>, config: WorldConfig) -> Result<Self, WorldError> {
         config.validate()?;
-        let lidar = Lidar::new(config.lidar.clone());
+        let lidar = Arc::new(Lidar::new(config.lidar.clone()));
         Ok(Self {
             circuit,
             config,
@@ -52,6 +61,8 @@ impl World {
             shapes: Vec::new(),
             present: Vec::new(),
             seen: Vec::new(),
+            before: Vec::new(),
+            hit: Vec::new(),
         })
     }
 
@@ -66,7 +77,7 @@ impl World {
     /// Forces the LIDAR scans onto one code path (benches and `paddock perf` measure each
     /// path this way; every path gives the same bits). An error if this CPU cannot run it.
     pub fn set_scan_path(&mut self, path: ScanPath) -> Result<(), ScanPathError> {
-        self.lidar = self.lidar.clone().with_path(path)?;
+        self.lidar = Arc::new((*self.lidar).clone().with_path(path)?);
         Ok(())
     }
 
@@ -144,13 +155,82 @@ impl World {
             observation,
         });
         let n = self.num_agents();
-        self.resolve_collisions(&[], &mut vec![false; n]);
+        self.before.clear();
+        self.resolve_collisions(&mut vec![false; n]);
         self.observe();
         Ok(&self.state.as_ref().expect("state set above").observation)
     }
 
     /// Advance every racing car by one timestep.
     pub fn step(&mut self, actions: &[Action]) -> Result<StepEvents, WorldError> {
+        let mut events = StepEvents::default();
+        self.step_into(actions, &mut events)?;
+        Ok(events)
+    }
+
+    /// [`World::step`], writing what the step did into `events` (resized to the cars):
+    /// a step that allocates nothing once the buffers have their size.
+    pub fn step_into(
+        &mut self,
+        actions: &[Action],
+        events: &mut StepEvents,
+    ) -> Result<(), WorldError> {
+        self.check_actions(actions)?;
+        let n = self.num_agents();
+        let dt = self.config.dt;
+        let state = self.state.as_mut().ok_or(WorldError::NotReset)?;
+        // Stop mode puts a colliding car back where it was: keep the states before the step.
+        let stop_mode = self.config.collision_mode == CollisionMode::Stop;
+        let before = &mut self.before;
+        before.clear();
+        if stop_mode {
+            before.resize(n, None);
+        }
+        for (i, (agent, a)) in state.agents.iter_mut().zip(actions).enumerate() {
+            if agent.status != AgentStatus::Racing {
+                continue;
+            }
+            if stop_mode {
+                before[i] = Some(agent.vehicle.clone());
+            }
+            agent
+                .vehicle
+                .step(&self.config.agents[i].params, a.steer, a.speed, dt);
+        }
+        state.steps += 1;
+        state.time = state.steps as f64 * dt;
+        for v in [
+            &mut events.collided,
+            &mut events.lap_completed,
+            &mut events.terminated,
+        ] {
+            v.clear();
+            v.resize(n, false);
+        }
+        self.resolve_collisions(&mut events.collided);
+        let state = self.state.as_mut().expect("checked above");
+        let track = &self.circuit.track;
+        for (i, agent) in state.agents.iter_mut().enumerate() {
+            if agent.status == AgentStatus::Racing {
+                let p = agent.vehicle.pose();
+                if agent.laps.update(track, p.x, p.y, state.time, dt) > 0 {
+                    events.lap_completed[i] = true;
+                }
+                if let Some(target) = self.config.laps
+                    && agent.laps.laps >= target
+                {
+                    agent.status = AgentStatus::Finished;
+                    agent.finish_time = Some(state.time);
+                }
+            }
+            events.terminated[i] = agent.status != AgentStatus::Racing;
+        }
+        self.observe();
+        Ok(())
+    }
+
+    /// Whether `actions` are a valid step of this world: one finite action per car.
+    pub fn check_actions(&self, actions: &[Action]) -> Result<(), WorldError> {
         let n = self.num_agents();
         if actions.len() != n {
             return Err(WorldError::ActionCount {
@@ -174,52 +254,7 @@ impl World {
                 });
             }
         }
-        let dt = self.config.dt;
-        let state = self.state.as_mut().ok_or(WorldError::NotReset)?;
-        // Stop mode puts a colliding car back where it was: keep the states before the step.
-        let stop_mode = self.config.collision_mode == CollisionMode::Stop;
-        let mut before: Vec<Option<Vehicle>> = Vec::new();
-        if stop_mode {
-            before.resize(n, None);
-        }
-        for (i, (agent, a)) in state.agents.iter_mut().zip(actions).enumerate() {
-            if agent.status != AgentStatus::Racing {
-                continue;
-            }
-            if stop_mode {
-                before[i] = Some(agent.vehicle.clone());
-            }
-            agent
-                .vehicle
-                .step(&self.config.agents[i].params, a.steer, a.speed, dt);
-        }
-        state.steps += 1;
-        state.time = state.steps as f64 * dt;
-        let mut events = StepEvents {
-            collided: vec![false; n],
-            lap_completed: vec![false; n],
-            terminated: vec![false; n],
-        };
-        self.resolve_collisions(&before, &mut events.collided);
-        let state = self.state.as_mut().expect("checked above");
-        let track = &self.circuit.track;
-        for (i, agent) in state.agents.iter_mut().enumerate() {
-            if agent.status == AgentStatus::Racing {
-                let p = agent.vehicle.pose();
-                if agent.laps.update(track, p.x, p.y, state.time, dt) > 0 {
-                    events.lap_completed[i] = true;
-                }
-                if let Some(target) = self.config.laps
-                    && agent.laps.laps >= target
-                {
-                    agent.status = AgentStatus::Finished;
-                    agent.finish_time = Some(state.time);
-                }
-            }
-            events.terminated[i] = agent.status != AgentStatus::Racing;
-        }
-        self.observe();
-        Ok(events)
+        self.state().map(|_| ())
     }
 
     /// Every car out of the race?
@@ -235,9 +270,9 @@ impl World {
     }
 
     /// Detect collisions of the cars in their current poses and apply the collision
-    /// mode. `before` holds each car's vehicle state before the step (Stop mode; empty
-    /// otherwise). Leaves every car's final box in `self.shapes` for the scans.
-    fn resolve_collisions(&mut self, before: &[Option<Vehicle>], collided: &mut [bool]) {
+    /// mode. `self.before` holds each car's vehicle state before the step (Stop mode;
+    /// empty otherwise). Leaves every car's final box in `self.shapes` for the scans.
+    fn resolve_collisions(&mut self, collided: &mut [bool]) {
         let state = self.state.as_ref().expect("reset before collisions");
         let n = state.agents.len();
         let mut boxes = std::mem::take(&mut self.shapes);
@@ -250,7 +285,9 @@ impl World {
                 .map(|(i, a)| self.car_box(i, &a.vehicle)),
         );
         let map = &self.circuit.map;
-        let mut hit = vec![false; n];
+        let mut hit = std::mem::take(&mut self.hit);
+        hit.clear();
+        hit.resize(n, false);
         for i in 0..n {
             if state.agents[i].status != AgentStatus::Racing {
                 continue;
@@ -292,7 +329,7 @@ impl World {
                     agent.finish_time = Some(state.time);
                 }
                 CollisionMode::Stop => {
-                    if let Some(prev) = before.get(i).and_then(Option::as_ref) {
+                    if let Some(prev) = self.before.get(i).and_then(Option::as_ref) {
                         agent.vehicle = prev.clone();
                         let p = &self.config.agents[i].params;
                         boxes[i] = Obb::car(agent.vehicle.pose(), p.length, p.width);
@@ -303,6 +340,7 @@ impl World {
             }
         }
         self.shapes = boxes;
+        self.hit = hit;
     }
 
     fn observe(&mut self) {
