@@ -347,11 +347,19 @@ fn a_batch_whose_results_cannot_fit_a_message_is_refused_before_any_work() {
     let c = Cluster::start(1, 1);
     let mut cl = client(&c, 1);
     let b = bundle();
-    // 600 episodes of 60 s with the trajectory of every step: ~390 MiB of results
-    let mut ts = tasks(600, 60.0);
-    for t in &mut ts {
-        t.record = Some(1);
-    }
+    // 600 episodes that run their whole 60 s (100 laps to go) with the trajectory of
+    // every step: ~170 MiB of results
+    let mut s = Scenario::single("pure-pursuit").unwrap();
+    s.time_limit = 60.0;
+    s.laps = 100;
+    let s = std::sync::Arc::new(s);
+    let ts: Vec<EpisodeTask> = (0..600)
+        .map(|k| EpisodeTask {
+            scenario: s.clone(),
+            seed: task_seed(17, k),
+            record: Some(1),
+        })
+        .collect();
     let e = cl
         .request(Body::RolloutBatch(batch_to_proto(
             &ts,
