@@ -161,15 +161,15 @@ fn unfinished_tasks_count_per_client_not_per_connection_and_leave_with_the_clien
     let mut refused = 0;
     for s in &mut sockets {
         s.send(Body::RolloutBatch(batch())).unwrap();
-        if let Ok(r) = s.recv(Duration::from_millis(1500)) {
-            match r.body {
-                Body::Error(e) => {
-                    assert_eq!(e.code, ErrorCode::Busy as i32, "{e:?}");
-                    refused += 1;
-                }
-                Body::RolloutProgress(_) => {}
-                other => panic!("unexpected {other:?}"),
+        // a refused batch gets BUSY; a queued one the progress the broker sends every
+        // second while it waits
+        match s.recv(T).expect("a refusal or the batch's progress").body {
+            Body::Error(e) => {
+                assert_eq!(e.code, ErrorCode::Busy as i32, "{e:?}");
+                refused += 1;
             }
+            Body::RolloutProgress(p) => assert_eq!((p.done, p.total), (0, 4)),
+            other => panic!("unexpected {other:?}"),
         }
     }
     assert_eq!(refused, 3, "10 tasks per client: two batches of 4 fit");
@@ -177,7 +177,10 @@ fn unfinished_tasks_count_per_client_not_per_connection_and_leave_with_the_clien
     // another client still has its own room
     let mut other = client(&c, 8);
     other.send(Body::RolloutBatch(batch())).unwrap();
-    std::thread::sleep(Duration::from_millis(500));
+    assert!(matches!(
+        other.recv(T).expect("the batch's progress").body,
+        Body::RolloutProgress(_)
+    ));
     assert_eq!(status(&c).queue_depth, 12);
     // clients that leave take their queued tasks with them
     drop(sockets);
