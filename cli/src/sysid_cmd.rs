@@ -112,6 +112,28 @@ fn recording_files(path: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
+/// The name each recording file's runs are reported under: its file name, or, when two
+/// files of different folders share it, its folder and file name (`day2/run-01.csv`).
+fn run_names(files: &[std::path::PathBuf]) -> Vec<String> {
+    let base = |f: &std::path::PathBuf| {
+        f.file_name().map_or_else(
+            || f.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
+    };
+    files
+        .iter()
+        .map(|f| {
+            let name = base(f);
+            let shared = files.iter().filter(|g| base(g) == name).count() > 1;
+            match f.parent().and_then(|p| p.file_name()) {
+                Some(dir) if shared => format!("{}/{name}", dir.to_string_lossy()),
+                _ => name,
+            }
+        })
+        .collect()
+}
+
 pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Result<()> {
     if let Some(SysidCommand::Synth(s)) = &args.command {
         return sysid_synth::run(s, circuits);
@@ -132,24 +154,31 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
         drive: a.drive_topic.clone(),
         odom: a.odom_topic.clone(),
     };
-    let mut parts = Vec::new();
+    let mut files = Vec::new();
     for path in &a.recording {
-        for file in recording_files(path)? {
-            let mut rec = Recording::read(&file, &topics)
-                .with_context(|| format!("loading the recording {}", file.display()))?;
-            let name = file.file_name().map_or_else(
-                || file.display().to_string(),
-                |n| n.to_string_lossy().into_owned(),
-            );
-            for (k, r) in rec.run_info.iter_mut().enumerate() {
-                if r.name == "recording" || r.name == "bag" {
-                    r.name = name.clone();
-                } else if r.name.starts_with("bag#") {
-                    r.name = format!("{name}#{}", k + 1);
-                }
+        files.extend(recording_files(path)?);
+    }
+    let names = run_names(&files);
+    let mut parts = Vec::new();
+    for (file, name) in files.iter().zip(names) {
+        let mut rec = Recording::read(file, &topics)
+            .with_context(|| format!("loading the recording {}", file.display()))?;
+        let base = file
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        for (k, r) in rec.run_info.iter_mut().enumerate() {
+            if r.name == "recording" || r.name == "bag" {
+                r.name = name.clone();
+            } else if r.name.starts_with("bag#") {
+                r.name = format!("{name}#{}", k + 1);
+            } else if let Some(rest) = r.name.strip_prefix(base.as_str())
+                && !base.is_empty()
+            {
+                // a CSV file's own run names start with its file name
+                r.name = format!("{name}{rest}");
             }
-            parts.push(rec);
         }
+        parts.push(rec);
     }
     let rec = Recording::join(parts);
     for w in &rec.warnings {
@@ -240,4 +269,32 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
         analysis.seconds
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::run_names;
+    use std::path::PathBuf;
+
+    #[test]
+    fn runs_of_files_with_the_same_name_in_two_folders_are_told_apart() {
+        let files: Vec<PathBuf> = [
+            "a/day1/run-01.csv",
+            "a/day2/run-01.csv",
+            "a/day2/run-02.csv",
+            "lap.mcap",
+        ]
+        .iter()
+        .map(PathBuf::from)
+        .collect();
+        assert_eq!(
+            run_names(&files),
+            [
+                "day1/run-01.csv",
+                "day2/run-01.csv",
+                "run-02.csv",
+                "lap.mcap"
+            ]
+        );
+    }
 }
