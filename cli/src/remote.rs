@@ -293,13 +293,8 @@ const BATCH_RESULT_BYTES: u64 = (paddock_proto::MAX_MESSAGE_BYTES / 2) as u64;
 /// work; see `paddock_broker::TaskBudget`).
 fn result_bytes(t: &EpisodeTask) -> u64 {
     let s = &t.scenario;
-    let budget = paddock_broker::TaskBudget {
-        sim_seconds: s.time_limit,
-        steps: (s.time_limit / paddock_sim::world::WorldConfig::default().dt).ceil() as u64,
-        agents: s.agents.len() as u32,
-        laps: s.laps,
-    };
-    budget.result_bytes(paddock_wire::record_to_proto(t.record))
+    paddock_jobs::episode_budget(s.time_limit, s.agents.len(), s.laps)
+        .result_bytes(paddock_wire::record_to_proto(t.record))
 }
 
 /// Consecutive runs of `tasks` whose results each fit in `limit` bytes (a task larger

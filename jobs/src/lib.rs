@@ -126,19 +126,29 @@ pub(crate) fn check_batch(
     check_task_indices(batch, prefix)
 }
 
+/// What an episode of `time_limit` simulated seconds with `agents` cars and `laps` laps
+/// asks of a worker (its deadline and the size of its result, see
+/// [`paddock_broker::TaskBudget`]); episodes step at the simulator's default timestep.
+pub fn episode_budget(time_limit: f64, agents: usize, laps: u32) -> paddock_broker::TaskBudget {
+    paddock_broker::TaskBudget {
+        sim_seconds: time_limit,
+        steps: (time_limit / paddock_sim::world::WorldConfig::default().dt).ceil() as u64,
+        agents: u32::try_from(agents).unwrap_or(u32::MAX),
+        laps,
+    }
+}
+
 impl Planner for Plans {
     fn budget(&self, scenario: &[u8]) -> Option<paddock_broker::TaskBudget> {
         let wire = <paddock_proto::Scenario as prost::Message>::decode(scenario).ok()?;
         if !(wire.time_limit.is_finite() && wire.time_limit > 0.0) {
             return None;
         }
-        Some(paddock_broker::TaskBudget {
-            sim_seconds: wire.time_limit,
-            // episodes step at the simulator's default timestep
-            steps: (wire.time_limit / paddock_sim::world::WorldConfig::default().dt).ceil() as u64,
-            agents: u32::try_from(wire.agents.len()).unwrap_or(u32::MAX),
-            laps: wire.laps,
-        })
+        Some(episode_budget(
+            wire.time_limit,
+            wire.agents.len(),
+            wire.laps,
+        ))
     }
 
     fn check_batch(

@@ -35,15 +35,13 @@ pub type Principal = String;
 pub fn principal(user_id: Option<&str>, route: &[u8]) -> Principal {
     match user_id {
         Some(key) if !key.is_empty() => format!("key:{key}"),
-        _ => {
-            let mut s = String::with_capacity(5 + 2 * route.len());
-            s.push_str("peer:");
-            for b in route {
-                s.push_str(&format!("{b:02x}"));
-            }
-            s
-        }
+        _ => format!("peer:{}", hex(route)),
     }
+}
+
+/// Bytes as lower-case hex digits (routing ids in logs and principals, job ids).
+pub fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 /// Workers and tasks together: credit-based dispatch and requeueing. `R` is what the

@@ -7,7 +7,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::time::Duration;
 
-use paddock_proto::{Body, EnvOp, EnvRequest, RolloutProgress};
+use paddock_proto::{Body, EnvOp, EnvRequest};
 
 use super::{Broker, OwnerKind, Side, hex};
 use crate::core::{Principal, TaskId, WorkerKey};
@@ -185,11 +185,7 @@ impl Broker {
         }
         for (source, client, rid) in due {
             let (done, total) = self.disp.tasks.progress(source).unwrap_or((0, 0));
-            let msg = Body::RolloutProgress(RolloutProgress {
-                done: done as u32,
-                total: total as u32,
-                instance: self.instance.clone(),
-            });
+            let msg = self.progress_body(done, total);
             if let Some(OwnerKind::Batch { last_progress, .. }) =
                 self.sources.get_mut(&source).map(|o| &mut o.kind)
             {

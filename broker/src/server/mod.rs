@@ -592,6 +592,4 @@ fn office_doorbell_seq() -> String {
     )
 }
 
-pub(crate) fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
-}
+pub(crate) use crate::core::hex;

@@ -112,16 +112,16 @@ impl Broker {
         }
         *last_progress = Instant::now();
         let (client, rid) = (client.clone(), *request_id);
-        self.send(
-            Side::Client,
-            &client,
-            rid,
-            Body::RolloutProgress(RolloutProgress {
-                done: done as u32,
-                total: total as u32,
-                instance: self.instance.clone(),
-            }),
-        );
+        self.send(Side::Client, &client, rid, self.progress_body(done, total));
+    }
+
+    /// A batch's progress as its client gets it.
+    pub(super) fn progress_body(&self, done: usize, total: usize) -> Body {
+        Body::RolloutProgress(RolloutProgress {
+            done: done as u32,
+            total: total as u32,
+            instance: self.instance.clone(),
+        })
     }
 
     pub(super) fn finish_source(&mut self, source: SourceId) {

@@ -107,10 +107,7 @@ const JOB_COLUMNS: &str = "id, name, kind, state, spec, job_state, result_json, 
 fn draw_job_id() -> Result<String, std::io::Error> {
     let mut b = [0u8; 16];
     getrandom::fill(&mut b).map_err(std::io::Error::other)?;
-    Ok(format!(
-        "job-{}",
-        b.iter().map(|x| format!("{x:02x}")).collect::<String>()
-    ))
+    Ok(format!("job-{}", crate::core::hex(&b)))
 }
 
 impl Store {
