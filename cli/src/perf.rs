@@ -1,8 +1,10 @@
 //! `paddock perf`: the simulator's speed on one thread.
 //!
 //! Cars driven by pure pursuit lap the map (episodes restart from seeded random starts);
-//! only the time inside `World::step` is counted (this thread's CPU time, so other
-//! processes on the machine do not count against it), so the figure is the simulator's own
+//! only the time inside `World::step` is counted (by the wall clock, scaled by the share of
+//! the measurement's wall time this thread ran on a CPU, so other processes on the machine
+//! do not count against it; reading the thread's CPU clock around every step would cost a
+//! system call each, a fifth of a step without the scan), so the figure is the simulator's own
 //! cost: dynamics, collisions, laps and (unless disabled) the 1080-beam LIDAR of every
 //! car. Rays/s times the LIDAR alone from poses recorded on the track. The report names
 //! the map and the LIDAR's code path and the CPU's SIMD features, since the scan's speed
@@ -78,6 +80,51 @@ struct Run {
     poses: Vec<Pose>,
 }
 
+/// Time spent inside the steps of one measurement: summed by the wall clock (a cheap
+/// read), then scaled by the share of the measurement's wall time this thread was on a
+/// CPU (two reads of its CPU clock in all).
+struct StepClock {
+    wall0: Instant,
+    cpu0: Duration,
+    in_steps: Duration,
+}
+
+impl StepClock {
+    fn start() -> Self {
+        Self {
+            wall0: Instant::now(),
+            cpu0: thread_cpu(),
+            in_steps: Duration::ZERO,
+        }
+    }
+
+    /// Runs `step`, adding its wall time.
+    fn time<T>(&mut self, step: impl FnOnce() -> T) -> T {
+        let t0 = Instant::now();
+        let out = step();
+        self.in_steps += t0.elapsed();
+        out
+    }
+
+    /// Wall time inside the steps so far (to end the measurement on).
+    fn wall(&self) -> Duration {
+        self.in_steps
+    }
+
+    /// The steps' share of this thread's CPU time: their wall time times the share of
+    /// the wall time the thread ran (1 on an idle machine).
+    fn busy(&self) -> Duration {
+        let wall = self.wall0.elapsed().as_secs_f64();
+        let cpu = thread_cpu().saturating_sub(self.cpu0).as_secs_f64();
+        let share = if wall > 0.0 && cpu > 0.0 {
+            (cpu / wall).min(1.0)
+        } else {
+            1.0
+        };
+        self.in_steps.mul_f64(share)
+    }
+}
+
 fn drive(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
@@ -104,11 +151,11 @@ fn drive(
         .collect();
     let mut actions = vec![Action::default(); agents];
     let budget = Duration::from_secs_f64(seconds.max(0.1));
-    let mut busy = Duration::ZERO;
+    let mut clock = StepClock::start();
     let mut agent_steps = 0u64;
     let mut poses = Vec::new();
     let mut seed = 0u64;
-    while busy < budget {
+    while clock.wall() < budget {
         world.reset(seed, &Starts::Random)?;
         drivers.iter_mut().for_each(Driver::reset);
         seed += 1;
@@ -124,15 +171,13 @@ fn drive(
                 }
                 actions[i] = d.act(obs, i);
             }
-            let t0 = thread_cpu();
-            world.step(&actions)?;
-            busy += thread_cpu().saturating_sub(t0);
+            clock.time(|| world.step(&actions))?;
             agent_steps += agents as u64;
         }
     }
     Ok(Run {
         agent_steps,
-        busy,
+        busy: clock.busy(),
         poses,
     })
 }
@@ -171,11 +216,11 @@ fn drive_batch(
     let mut actions = vec![Action::default(); cars];
     let mut scans = vec![0u8; if scan.is_some() { cars * beams * 4 } else { 0 }];
     let budget = Duration::from_secs_f64(seconds.max(0.1));
-    let mut busy = Duration::ZERO;
+    let mut clock = StepClock::start();
     let mut agent_steps = 0u64;
     let mut poses = Vec::new();
     let mut seed = 0u64;
-    while busy < budget {
+    while clock.wall() < budget {
         for w in 0..worlds {
             batch.reset(w, seed, &Starts::Random)?;
             seed += 1;
@@ -198,15 +243,13 @@ fn drive_batch(
             }
             let mut out =
                 PackedObservations::scans(&mut scans, if scan.is_some() { agents } else { 0 });
-            let t0 = thread_cpu();
-            batch.step(&actions, &[], Some(&mut out))?;
-            busy += thread_cpu().saturating_sub(t0);
+            clock.time(|| batch.step(&actions, &[], Some(&mut out)))?;
             agent_steps += cars as u64;
         }
     }
     Ok(Run {
         agent_steps,
-        busy,
+        busy: clock.busy(),
         poses,
     })
 }
@@ -254,17 +297,19 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         let beams = LidarConfig::default().num_beams;
         let mut out = vec![0.0; beams];
         let budget = Duration::from_secs_f64(args.seconds.max(0.1));
-        let t0 = Instant::now();
+        let mut clock = StepClock::start();
         let mut scans = 0u64;
         let mut checksum = 0.0;
-        while t0.elapsed() < budget {
-            for p in &noscan.poses {
-                lidar.scan(&circuit.map, *p, &[], &mut out);
-                checksum += out[beams / 2];
-                scans += 1;
-            }
+        while clock.wall() < budget {
+            clock.time(|| {
+                for p in &noscan.poses {
+                    lidar.scan(&circuit.map, *p, &[], &mut out);
+                    checksum += out[beams / 2];
+                    scans += 1;
+                }
+            });
         }
-        let rays = scans as f64 * beams as f64 / t0.elapsed().as_secs_f64();
+        let rays = scans as f64 * beams as f64 / clock.busy().as_secs_f64();
         tracing::debug!(checksum, "rays measured");
         (Some(scan_rate), Some(rays))
     };
