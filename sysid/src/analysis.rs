@@ -43,9 +43,9 @@ impl Default for AnalysisOptions {
             folds: 3,
             margin_per_param: 0.03,
             max_effects: 4,
-            // measurement_delay only when asked for: a sensor property, and with a
-            // steering delay it can take up the whole dead time (docs/sysid.md, known
-            // limits); its run-start artefact on controls is gone
+            // measurement_delay only when asked for: a sensor property most setups know,
+            // tested with a steering delay on five seeded days only (docs/sysid.md,
+            // known limits); its run-start artefact on controls is gone
             candidates: ALL
                 .into_iter()
                 .filter(|k| *k != EffectKind::MeasurementDelay)

@@ -139,6 +139,15 @@ pub fn could_be(
 /// (every 2 steps over its range, then the neighbours of the best), the others refitted
 /// at each value; it stays held at the best value for the held-out refits.
 pub fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, SysidError> {
+    joint_refit_on(ctx, &[], chosen)
+}
+
+/// [`joint_refit`] of `chosen` with the effects `base` held.
+pub fn joint_refit_on(
+    ctx: &FitContext,
+    base: &[Fitted],
+    chosen: &[Fitted],
+) -> Result<Vec<Fitted>, SysidError> {
     let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum();
     let trades_off = chosen.iter().any(|c| {
         matches!(
@@ -150,13 +159,13 @@ pub fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, S
         .iter()
         .position(|c| c.kind == EffectKind::SteeringDelay);
     let Some(di) = di.filter(|_| trades_off) else {
-        return Ok(ctx.fit(&[], chosen, &|_| true, evals)?.0);
+        return Ok(ctx.fit(base, chosen, &|_| true, evals)?.0);
     };
     let at = |n: usize| -> Result<(Vec<Fitted>, f64), SysidError> {
         let mut fx = chosen.to_vec();
         fx[di].values[0] = n as f64 * crate::replay::DT;
         fx[di].pinned = vec![0];
-        ctx.fit(&[], &fx, &|_| true, evals / 2)
+        ctx.fit(base, &fx, &|_| true, evals / 2)
     };
     let max_n = (EffectKind::SteeringDelay.bounds()[0].1 / crate::replay::DT).round() as usize;
     let coarse: Vec<usize> = (0..=max_n).step_by(2).collect();
@@ -187,6 +196,10 @@ pub fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, S
         .expect("at least one delay tried");
     Ok(best)
 }
+
+/// The delay-like effects: a candidate among them is fitted together with those already
+/// kept ([`crate::fit::FitContext::evidence`]).
+pub const DELAY_LIKE: &[EffectKind] = CONFUSABLE[0];
 
 /// Groups of effects that can stand in for each other.
 const CONFUSABLE: [&[EffectKind]; 4] = [
