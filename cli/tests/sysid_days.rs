@@ -209,11 +209,11 @@ fn steering_backlash_over_seeded_test_days() {
     );
 }
 
-/// Not yet: over ten seeds the pose latency is found in every one and its interval covers
-/// the truth in nine, but one fit is 34 % off and a spurious `drive_lag` of 7-36 ms is kept
-/// beside it in seven (docs/sysid.md, known limits).
+/// A pose latency among the actuation delays it can be mistaken for. It failed while the
+/// replay placed each run's start from samples that, with a latency, still showed the car
+/// before the run (a spurious `drive_lag` on seven days of ten, one fit 34 % off), and
+/// while that start jumped each time a sample crossed it (`sysid/src/replay/start.rs`).
 #[test]
-#[ignore = "measurement_delay: one fit of ten 34 % off, a spurious drive_lag in seven (docs/sysid.md known limits)"]
 fn measurement_delay_over_seeded_test_days() {
     seeded_repeats(
         "measurement_delay:delay_s=0.06",
@@ -285,6 +285,85 @@ fn recordings_with_different_channels_are_scored_in_every_channel() {
             before.is_some_and(f64::is_finite) && after.is_some_and(f64::is_finite),
             "{c}: {before:?} -> {after:?}\n{stdout}"
         );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Every candidate not kept says how large it could be without these data telling,
+/// multi-parameter ones too (drag, tire_saturation and friction_patch said nothing): each
+/// scanned parameter gets a range from "off", with the parameters held named.
+#[test]
+fn every_candidate_not_kept_says_what_it_could_be() {
+    let dir = scratch("could-be");
+    let day = dir.join("day");
+    let day_s = day.to_str().unwrap().to_string();
+    let (ok, _, err) = paddock(&[
+        "sysid",
+        "synth",
+        "--manoeuvre",
+        "step,arc,speed-step",
+        "--runs",
+        "6",
+        "--channels",
+        "pose+speed",
+        "--effect",
+        "steering_gain:gain=0.8",
+        "--seed",
+        "5",
+        "--out",
+        &day_s,
+    ]);
+    assert!(ok, "{err}");
+    let out = dir.join("out");
+    let out_s = out.to_str().unwrap();
+    let (ok, stdout, err) = paddock(&[
+        "sysid",
+        "--recording",
+        &day_s,
+        "--out",
+        out_s,
+        "--effects",
+        "steering_gain,drag,tire_saturation,friction_patch,drive_lag",
+        "--no-plots",
+    ]);
+    assert!(ok, "{err}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let effects = report["effects"].as_array().unwrap();
+    let scanned = |name: &str| -> &[&str] {
+        match name {
+            "drag" => &["c_lin", "c_quad"],
+            "tire_saturation" => &["D"],
+            "friction_patch" => &["mu"],
+            _ => &["tau_s"],
+        }
+    };
+    let mut not_kept = 0;
+    for e in effects.iter().filter(|e| e["significant"] == false) {
+        not_kept += 1;
+        let name = e["name"].as_str().unwrap();
+        let range = &e["not_detected_range"];
+        for p in scanned(name) {
+            let r = &range[*p];
+            let (lo, hi) = (r[0].as_f64(), r[1].as_f64());
+            assert!(
+                lo.zip(hi).is_some_and(|(lo, hi)| lo < hi),
+                "{name}.{p}: {range}\n{stdout}"
+            );
+        }
+        let multi = name != "drive_lag";
+        assert_eq!(e["not_detected_with"].is_object(), multi, "{name}: {e}");
+    }
+    assert_eq!(not_kept, 4, "{stdout}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "c_lin could be anywhere in [0.0000, ",
+        "(c_lin 0 held)",
+        "(C 1.5, E 0 held)",
+        "could peak as low as",
+        "mu could be anywhere in [",
+    ] {
+        assert!(md.contains(needle), "{needle}:\n{md}");
     }
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -13,7 +13,7 @@ use crate::fit::{Evidence, FitContext, Fitted, budget, build_params, measurement
 use crate::locate::{Located, locate};
 use crate::recording::Recording;
 use crate::replay::{Replay, Residuals};
-use crate::uncertainty::{ambiguities, could_be, interval, joint_refit, profile};
+use crate::uncertainty::{NotDetected, ambiguities, could_be, interval, joint_refit, profile};
 
 /// A held-out block's sums of squared residuals and measured samples per channel, and the
 /// fit made without it.
@@ -43,8 +43,9 @@ impl Default for AnalysisOptions {
             folds: 3,
             margin_per_param: 0.03,
             max_effects: 4,
-            // measurement_delay only when asked for: on pose-only test days a control
-            // can show a spurious 10-15 ms latency (see docs/sysid.md)
+            // measurement_delay only when asked for: a sensor property most setups know,
+            // tested with a steering delay on five seeded days only (docs/sysid.md,
+            // known limits); its run-start artefact on controls is gone
             candidates: ALL
                 .into_iter()
                 .filter(|k| *k != EffectKind::MeasurementDelay)
@@ -103,10 +104,10 @@ pub struct CandidateResult {
     /// Selected: per parameter, the range of the refits with each block (or group of
     /// runs) held out, widened to two jackknife standard errors.
     pub interval: Option<Vec<[f64; 2]>>,
-    /// Not selected (one-parameter effects): the range of the parameter these data cannot
-    /// tell from "off" (adding it to the final model changes the fit by less than the
-    /// margin an effect must beat).
-    pub could_be: Option<[f64; 2]>,
+    /// Not selected: the range of each scanned parameter these data cannot tell from
+    /// "off" (adding it to the final model changes the fit by less than the margin an
+    /// effect must beat).
+    pub could_be: Option<NotDetected>,
 }
 
 /// Everything an analysis produced.
@@ -372,22 +373,18 @@ pub fn analyze(
             r.interval = Some(iv);
         }
     }
-    let bounds: Vec<(EffectKind, Option<[f64; 2]>)> = results
+    let limit = final_cost * (1.0 + opts.margin_per_param);
+    let bounds: Vec<(EffectKind, NotDetected)> = results
         .values()
         .filter(|r| !r.selected)
-        .map(|r| r.evidence.kind)
+        .map(|r| (r.evidence.kind, r.evidence.values.clone()))
         .collect::<Vec<_>>()
         .into_par_iter()
-        .map(|k| {
-            (
-                k,
-                could_be(&ctx, &chosen, k, final_cost * (1.0 + opts.margin_per_param)),
-            )
-        })
+        .map(|(k, fitted)| (k, could_be(&ctx, &chosen, k, &fitted, limit)))
         .collect();
     for (k, b) in bounds {
         if let Some(r) = results.get_mut(&k) {
-            r.could_be = b;
+            r.could_be = Some(b);
         }
     }
     let ambiguities = ambiguities(&round_log, &chosen);

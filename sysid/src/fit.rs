@@ -302,6 +302,17 @@ impl FitContext<'_> {
     ) -> Result<Evidence, SysidError> {
         let start = self.start_of(base, kind)?;
         let budget = budget(kind);
+        // a delay-like candidate is fitted with the delay-like effects already kept, which
+        // move with it (held, a pose latency kept first took up a steering delay's share
+        // of the dead time, and the delay then looked like noise)
+        let delay_like = crate::uncertainty::DELAY_LIKE;
+        let (held, joint): (Vec<Fitted>, Vec<Fitted>) = base
+            .iter()
+            .cloned()
+            .partition(|b| !(delay_like.contains(&kind) && delay_like.contains(&b.kind)));
+        if !joint.is_empty() {
+            return self.joint_evidence(base_heldout, &held, joint, start, margin_per_param);
+        }
         let (mut all_fit, cost_free) =
             self.fit(base, std::slice::from_ref(&start), &|_| true, budget)?;
         if kind == EffectKind::TireSaturation {
@@ -315,11 +326,50 @@ impl FitContext<'_> {
                 all_fit = pinned_fit;
             }
         }
+        self.score(
+            base_heldout,
+            base,
+            &all_fit,
+            kind,
+            budget / 2,
+            margin_per_param,
+        )
+    }
+
+    /// Evidence for a delay-like `start` fitted jointly with the delay-like effects
+    /// `joint` already kept, `held` held: both fits (on all data and without each block)
+    /// move them together.
+    fn joint_evidence(
+        &self,
+        base_heldout: &[f64],
+        held: &[Fitted],
+        mut joint: Vec<Fitted>,
+        start: Fitted,
+        margin_per_param: f64,
+    ) -> Result<Evidence, SysidError> {
+        let kind = start.kind;
+        joint.push(start);
+        let all_fit = crate::uncertainty::joint_refit_on(self, held, &joint)?;
+        let evals = joint.iter().map(|j| budget(j.kind)).sum::<u64>() / 2;
+        self.score(base_heldout, held, &all_fit, kind, evals, margin_per_param)
+    }
+
+    /// Held-out evidence for `kind` among `free` (fitted on all data; refitted without
+    /// each block with `evals` evaluations), `held` held.
+    fn score(
+        &self,
+        base_heldout: &[f64],
+        held: &[Fitted],
+        free: &[Fitted],
+        kind: EffectKind,
+        evals: u64,
+        margin_per_param: f64,
+    ) -> Result<Evidence, SysidError> {
         let mut with = Vec::with_capacity(self.folds);
         for f in 0..self.folds {
             let train = |w: usize| self.fold_of_window[w] != f;
-            let (fold_fit, _) = self.fit(base, &all_fit, &train, budget / 2)?;
-            let mut fx = base.to_vec();
+            let (fold_fit, _) = self.fit(held, free, &train, evals)?;
+            let mut fx = held.to_vec();
             fx.extend(fold_fit);
             with.push(self.cost(&fx, &|w| self.fold_of_window[w] == f));
         }
@@ -344,10 +394,17 @@ impl FitContext<'_> {
             })
             .count();
         let margin = margin_per_param * evidence_params(kind) as f64;
+        // the candidate (last of `free` when fitted jointly)
+        let fitted = free
+            .iter()
+            .find(|e| e.kind == kind)
+            .or(free.last())
+            .cloned()
+            .unwrap_or_else(|| Fitted::new(kind, kind.start(self.nominal)));
         Ok(Evidence {
             kind,
-            values: all_fit[0].values.clone(),
-            fitted: all_fit[0].clone(),
+            values: fitted.values.clone(),
+            fitted: fitted.clone(),
             heldout_base: base_heldout.to_vec(),
             heldout_with: with,
             gain,
@@ -355,7 +412,7 @@ impl FitContext<'_> {
             folds_worse,
             margin,
             significant: gain > margin
-                && !kind.negligible(&all_fit[0].values)
+                && !kind.negligible(&fitted.values)
                 && folds_worse == 0
                 && folds_improved >= MIN_FOLDS_IMPROVED.min(self.folds),
         })

@@ -14,15 +14,15 @@ use paddock_sim::params::VehicleParams;
 
 use crate::recording::{CHANNELS, Recording, StateSample, wrap_pi};
 
+mod smooth;
+mod start;
+
+pub use smooth::{noise_scale, smoothed_state};
+use smooth::{smoothed, start_state};
+use start::StartWindow;
+
 /// Physics step of the simulator [s].
 pub const DT: f64 = 0.01;
-
-/// Floors of the per-channel noise scale (x, y [m], yaw [rad], vx, vy [m/s], yaw_rate
-/// [rad/s]): a recording with almost no noise still weighs the channels sensibly.
-const SIGMA_FLOOR: [f64; 6] = [0.005, 0.005, 0.003, 0.01, 0.01, 0.01];
-
-/// Half-width of the local linear fit that smooths an anchor state [s].
-const ANCHOR_HALF_WIDTH_S: f64 = 0.06;
 
 #[derive(Debug, Clone, Copy)]
 struct SampleRef {
@@ -49,6 +49,9 @@ struct Anchor {
 /// Speed above which a run counts as starting in motion [m/s].
 const MOVING_MPS: f64 = 0.3;
 
+/// Bounds of the span over which a run's start state is fitted [s].
+const START_SPAN_S: (f64, f64) = (0.12, 0.3);
+
 /// The recording prepared for replay.
 #[derive(Debug, Clone)]
 pub struct Replay {
@@ -61,6 +64,12 @@ pub struct Replay {
     states: Vec<StateSample>,
     /// State index range of each run.
     runs: Vec<(usize, usize)>,
+    /// Whether each run starts in motion (its speed where it starts, whatever latency is
+    /// tried: the start's treatment must not change with it).
+    moving: Vec<bool>,
+    /// Span of each run's start fit [s] ([`start_state`]): four sample periods, within
+    /// [`START_SPAN_S`].
+    start_span: Vec<f64>,
     /// Per-channel noise scale estimated from the recording (with floors).
     pub sigma: [f64; 6],
     pub window_s: f64,
@@ -100,6 +109,25 @@ impl Replay {
             .iter()
             .map(|r| (r.first_state, r.first_state + r.n_states))
             .collect();
+        let moving = runs
+            .iter()
+            .map(|&(lo, hi)| {
+                let st = &rec.states[lo..hi];
+                lo < hi && smoothed(st, st[0].t, true).vx.abs() > MOVING_MPS
+            })
+            .collect();
+        let start_span = runs
+            .iter()
+            .map(|&(lo, hi)| {
+                let mut dt: Vec<f64> = rec.states[lo..hi]
+                    .windows(2)
+                    .map(|w| w[1].t - w[0].t)
+                    .collect();
+                dt.sort_by(f64::total_cmp);
+                let period = dt.get(dt.len() / 2).copied().unwrap_or(0.0);
+                (4.0 * period).clamp(START_SPAN_S.0, START_SPAN_S.1)
+            })
+            .collect();
         let mut replay = Self {
             commands,
             anchors: Vec::new(),
@@ -108,6 +136,8 @@ impl Replay {
             times: rec.states.iter().map(|s| s.t).collect(),
             states: rec.states.clone(),
             runs,
+            moving,
+            start_span,
             sigma: noise_scale(rec),
             window_s: win_steps as f64 * DT,
             win_steps,
@@ -143,14 +173,25 @@ impl Replay {
             }
             let first = ((self.times[lo] / DT) - 1e-9).ceil().max(0.0) as usize;
             let last = ((self.times[hi - 1] / DT) + 1e-9).floor() as usize;
+            let st = &self.states[lo..hi];
             let mut a = first;
             while a <= last && a < steps {
-                // unmeasured velocities: derived from the pose where a run starts, else
+                let fresh = a == first;
+                let t = a as f64 * DT + delay;
+                // where a run starts, only the samples of the run's own states (with a
+                // latency, the first `delay` seconds of the log still show the car
+                // before it; a fit across that edge gave a start from rest the speed of
+                // the acceleration after it); elsewhere unmeasured velocities are
                 // carried on from the replay itself (less noisy than a pose derivative)
+                let state = if fresh {
+                    start_state(st, t, self.start_span[r], self.moving[r])
+                } else {
+                    smoothed(st, t, false)
+                };
                 anchors.push(Anchor {
                     step: a,
-                    state: smoothed(&self.states[lo..hi], a as f64 * DT + delay, a == first),
-                    fresh: a == first,
+                    state,
+                    fresh,
                     run: r,
                 });
                 a += self.win_steps;
@@ -159,13 +200,15 @@ impl Replay {
         anchors
     }
 
-    /// Step and fraction of a sample at `t` of run `r` (never before the run's start).
+    /// Step and fraction of a sample at `t` of run `r`. A time before the run's first
+    /// step (a latency reaching back past its start) gives that step and a negative
+    /// fraction: the replay extrapolates the start state back in time.
     fn sample_step(&self, r: usize, t: f64) -> (usize, f64) {
         let start = self.times[self.runs[r].0];
         let first = ((start / DT) - 1e-9).ceil().max(0.0) as usize;
         let (step, frac) = step_of(t);
         if step < first {
-            (first, 0.0)
+            (first, (t / DT - first as f64).min(0.0))
         } else {
             (step, frac)
         }
@@ -250,15 +293,23 @@ impl Replay {
         let mut car = Vehicle::new(Pose::new(first.x, first.y, first.yaw.rem_euclid(TAU)));
         let mut next_anchor = 0usize;
         let mut si = 0usize;
+        // a run's first window waits for its start pose to be fitted
+        let mut start = StartWindow::default();
+        let mut start_step = 0usize;
         for (k, &(steer, speed)) in self.commands.iter().enumerate() {
             if next_anchor < anchors.len() && anchors[next_anchor].step == k {
+                start.flush(&self.sigma, &mut visit);
                 let a = &anchors[next_anchor];
                 if a.fresh && next_anchor > 0 {
                     car = Vehicle::new(Pose::new(a.state.x, a.state.y, 0.0));
                 }
                 anchor(&mut car, &a.state);
-                if a.fresh && libm::hypot(a.state.vx, a.state.vy) > MOVING_MPS {
+                if a.fresh && self.moving[a.run] {
                     car.settle_commands(p, steer, speed, DT);
+                }
+                if a.fresh {
+                    start.begin((car.state.x, car.state.y), self.start_span[a.run]);
+                    start_step = k;
                 }
                 next_anchor += 1;
             }
@@ -267,18 +318,22 @@ impl Replay {
             let after = car.state;
             while si < samples.len() && samples[si].step == k {
                 let f = samples[si].frac;
-                let lerp = |a: f64, b: f64| a + f * (b - a);
-                let yaw = before.yaw + f * wrap_pi(after.yaw - before.yaw);
-                let (vx0, vy0) = body(&before);
-                let (vx1, vy1) = body(&after);
-                let sim = [
-                    lerp(before.x, after.x),
-                    lerp(before.y, after.y),
-                    yaw,
-                    lerp(vx0, vx1),
-                    lerp(vy0, vy1),
-                    lerp(before.yaw_rate, after.yaw_rate),
-                ];
+                let sim = if f < 0.0 {
+                    before_start(&before, f * DT)
+                } else {
+                    let lerp = |a: f64, b: f64| a + f * (b - a);
+                    let yaw = before.yaw + f * wrap_pi(after.yaw - before.yaw);
+                    let (vx0, vy0) = body(&before);
+                    let (vx1, vy1) = body(&after);
+                    [
+                        lerp(before.x, after.x),
+                        lerp(before.y, after.y),
+                        yaw,
+                        lerp(vx0, vx1),
+                        lerp(vy0, vy1),
+                        lerp(before.yaw_rate, after.yaw_rate),
+                    ]
+                };
                 let m = &self.meas[si];
                 let mut r = [0.0; 6];
                 for c in 0..6 {
@@ -294,10 +349,16 @@ impl Replay {
                         r[c] = f64::NAN;
                     }
                 }
-                visit(si, samples[si].window, r, sim);
+                if start.is_open() {
+                    let u = (k - start_step) as f64 * DT + f * DT;
+                    start.hold((si, samples[si].window, r, sim, u));
+                } else {
+                    visit(si, samples[si].window, r, sim);
+                }
                 si += 1;
             }
         }
+        start.flush(&self.sigma, &mut visit);
     }
 
     /// Noise-normalised squared residual summed per window.
@@ -382,6 +443,22 @@ fn body(s: &paddock_sim::dynamics::VehicleState) -> (f64, f64) {
     (s.v * libm::cos(s.slip_angle), s.v * libm::sin(s.slip_angle))
 }
 
+/// The channels `dt` (< 0) before a run's start state `s`: the car drove on steadily
+/// before the run (at rest, or in the steady state of its first command), so the pose is
+/// carried back along its velocity and the velocities are the start's.
+fn before_start(s: &paddock_sim::dynamics::VehicleState, dt: f64) -> [f64; 6] {
+    let (vx, vy) = body(s);
+    let (sn, cs) = (libm::sin(s.yaw), libm::cos(s.yaw));
+    [
+        s.x + dt * (cs * vx - sn * vy),
+        s.y + dt * (sn * vx + cs * vy),
+        s.yaw + dt * s.yaw_rate,
+        vx,
+        vy,
+        s.yaw_rate,
+    ]
+}
+
 /// Reset the dynamic state to a recorded one; the wheel angle and command memory stay,
 /// and so do the velocities the recording does not have (NaN).
 fn anchor(car: &mut Vehicle, s: &StateSample) {
@@ -412,152 +489,6 @@ fn anchor(car: &mut Vehicle, s: &StateSample) {
         }
         _ => {}
     }
-}
-
-/// Half-width of the local fit that derives unmeasured velocities from the pose [s].
-const DERIVE_HALF_WIDTH_S: f64 = 0.15;
-
-/// Value and slope at `t` of channel `c` by a least-squares line through the measured
-/// samples of `pts` (yaw unwrapped around `yaw_ref`); `None` with fewer than `min` samples.
-fn local_line(
-    pts: &[StateSample],
-    t: f64,
-    c: usize,
-    yaw_ref: f64,
-    min: usize,
-) -> Option<(f64, f64)> {
-    let y = |s: &StateSample| {
-        let ch = s.channels()[c];
-        if c == 2 {
-            yaw_ref + wrap_pi(ch - yaw_ref)
-        } else {
-            ch
-        }
-    };
-    let used: Vec<&StateSample> = pts.iter().filter(|s| s.channels()[c].is_finite()).collect();
-    if used.len() < min {
-        return None;
-    }
-    let n = used.len() as f64;
-    let tm = used.iter().map(|s| s.t - t).sum::<f64>() / n;
-    let var = used.iter().map(|s| (s.t - t - tm).powi(2)).sum::<f64>();
-    let ym = used.iter().map(|s| y(s)).sum::<f64>() / n;
-    let slope = if var > 1e-12 {
-        used.iter()
-            .map(|s| (s.t - t - tm) * (y(s) - ym))
-            .sum::<f64>()
-            / var
-    } else {
-        0.0
-    };
-    Some((ym - slope * tm, slope))
-}
-
-/// The recorded state at `t`, smoothed by a local linear fit over nearby samples of one
-/// run. A velocity channel that was not measured is derived from the pose (its slope over
-/// a wider span): `yaw_rate` from the yaw, `vx` and `vy` from the position turned into
-/// the body frame.
-pub fn smoothed_state(st: &[StateSample], t: f64) -> StateSample {
-    smoothed(st, t, true)
-}
-
-/// [`smoothed_state`]; without `derive`, unmeasured velocities stay NaN.
-fn smoothed(st: &[StateSample], t: f64, derive: bool) -> StateSample {
-    let lo = st.partition_point(|s| s.t < t - ANCHOR_HALF_WIDTH_S);
-    let hi = st.partition_point(|s| s.t <= t + ANCHOR_HALF_WIDTH_S);
-    let nearest = {
-        let i = st.partition_point(|s| s.t < t).min(st.len() - 1);
-        if i > 0 && (st[i - 1].t - t).abs() < (st[i].t - t).abs() {
-            i - 1
-        } else {
-            i
-        }
-    };
-    let pts: &[StateSample] = if hi >= lo + 3 {
-        &st[lo..hi]
-    } else {
-        std::slice::from_ref(&st[nearest])
-    };
-    let yaw_ref = st[nearest].yaw;
-    let mut vals = [f64::NAN; 6];
-    for (c, v) in vals.iter_mut().enumerate() {
-        if let Some((value, _)) = local_line(pts, t, c, yaw_ref, 1) {
-            *v = value;
-        }
-    }
-    if derive && vals[3..].iter().any(|v| !v.is_finite()) {
-        let wlo = st.partition_point(|s| s.t < t - DERIVE_HALF_WIDTH_S);
-        let whi = st.partition_point(|s| s.t <= t + DERIVE_HALF_WIDTH_S);
-        let wide = &st[wlo..whi.max(wlo)];
-        let slope = |c: usize| local_line(wide, t, c, yaw_ref, 3).map_or(0.0, |l| l.1);
-        let yaw = vals[2];
-        let (sx, sy) = (slope(0), slope(1));
-        let (sn, cs) = (libm::sin(yaw), libm::cos(yaw));
-        if !vals[3].is_finite() {
-            vals[3] = cs * sx + sn * sy;
-        }
-        if !vals[4].is_finite() {
-            vals[4] = -sn * sx + cs * sy;
-        }
-        if !vals[5].is_finite() {
-            vals[5] = slope(2);
-        }
-    }
-    let vals: [f64; 6] = std::array::from_fn(|c| {
-        if vals[c].is_finite() || !derive && c >= 3 {
-            vals[c]
-        } else {
-            0.0
-        }
-    });
-    StateSample {
-        t,
-        x: vals[0],
-        y: vals[1],
-        yaw: wrap_pi(vals[2]),
-        vx: vals[3],
-        vy: vals[4],
-        yaw_rate: vals[5],
-    }
-}
-
-/// Per-channel measurement noise: each sample against the line through its neighbours
-/// (`var = 1.5 sigma^2` for white noise), within each run, over the samples where the
-/// channel was measured, with floors.
-pub fn noise_scale(rec: &Recording) -> [f64; 6] {
-    let mut sum = [0.0; 6];
-    let mut n = [0usize; 6];
-    for run in rec.runs() {
-        let st = &rec.states[run.first_state..run.first_state + run.n_states];
-        for w in st.windows(3) {
-            let (a, b, c) = (w[0], w[1], w[2]);
-            let span = c.t - a.t;
-            if span <= 0.0 || span > 0.2 {
-                continue;
-            }
-            let f = (b.t - a.t) / span;
-            let (ca, cb, cc) = (a.channels(), b.channels(), c.channels());
-            for k in 0..6 {
-                let (ya, yc) = if k == 2 {
-                    (
-                        cb[2] + wrap_pi(ca[2] - cb[2]),
-                        cb[2] + wrap_pi(cc[2] - cb[2]),
-                    )
-                } else {
-                    (ca[k], cc[k])
-                };
-                let e = cb[k] - (ya + f * (yc - ya));
-                if e.is_finite() {
-                    sum[k] += e * e;
-                    n[k] += 1;
-                }
-            }
-        }
-    }
-    std::array::from_fn(|k| {
-        let s = (sum[k] / n[k].max(1) as f64 / 1.5).sqrt();
-        s.max(SIGMA_FLOOR[k])
-    })
 }
 
 /// The channel names, re-exported for reports.

@@ -45,9 +45,17 @@ pub fn to_json(a: &Analysis, rec: &Recording) -> Value {
                 "in_vehicle": e.kind.in_vehicle(),
                 "reading": c.selected.then(|| reading(a, c.evidence.kind, &c.values)),
                 "interval": c.interval.as_ref().map(|iv| interval_json(e.kind, iv)),
-                "not_detected_range": c.could_be.map(|b| {
-                    json!({ e.kind.param_names()[0]: [r5(b[0]), r5(b[1])] })
+                "not_detected_range": c.could_be.as_ref().map(|nd| {
+                    let names = e.kind.param_names();
+                    nd.ranges
+                        .iter()
+                        .map(|(p, b)| (names[*p].to_string(), json!([r5(b[0]), r5(b[1])])))
+                        .collect::<serde_json::Map<_, _>>()
                 }),
+                // a multi-parameter effect: where the parameters not scanned were held
+                "not_detected_with": c.could_be.as_ref()
+                    .filter(|_| e.kind.n_params() > 1)
+                    .map(|nd| e.kind.params_json(&nd.held)),
             })
         })
         .collect();
@@ -377,12 +385,11 @@ pub fn to_markdown_with(a: &Analysis, rec: &Recording, vesc: Option<&Value>) -> 
         let e = &c.evidence;
         let range = c
             .could_be
-            .map(|b| {
+            .as_ref()
+            .map(|nd| {
                 format!(
-                    "not detected; {} could be anywhere in [{:.4}, {:.4}] without these data telling. ",
-                    e.kind.param_names()[0],
-                    b[0],
-                    b[1]
+                    "not detected; {}. ",
+                    not_detected_words(e.kind, nd, a.nominal.mu)
                 )
             })
             .unwrap_or_else(|| "not detected. ".into());
@@ -508,4 +515,52 @@ pub fn write_with(
     );
     std::fs::write(&y, yaml).map_err(|e| io(&y, e))?;
     Ok(())
+}
+
+/// "c_lin could be anywhere in [0, 0.2] (c_quad 0 held); ... without these data
+/// telling" for an effect not kept.
+fn not_detected_words(
+    kind: EffectKind,
+    nd: &crate::uncertainty::NotDetected,
+    nominal_mu: f64,
+) -> String {
+    let names = kind.param_names();
+    let parts: Vec<String> = nd
+        .ranges
+        .iter()
+        .map(|(p, [lo, hi])| {
+            let held: Vec<String> = match kind {
+                EffectKind::Drag | EffectKind::TireSaturation => (0..names.len())
+                    .filter(|q| q != p)
+                    .map(|q| format!("{} {}", names[q], nd.held[q]))
+                    .collect(),
+                EffectKind::FrictionPatch => vec![format!(
+                    "inside x [{:.1}, {:.1}] m, y [{:.1}, {:.1}] m (where the residual pointed)",
+                    nd.held[1], nd.held[3], nd.held[2], nd.held[4]
+                )],
+                _ => Vec::new(),
+            };
+            let with = if held.is_empty() {
+                String::new()
+            } else if kind == EffectKind::FrictionPatch {
+                format!(" {}", held.join(", "))
+            } else {
+                format!(" ({} held)", held.join(", "))
+            };
+            format!(
+                "{} could be anywhere in [{lo:.4}, {hi:.4}]{with}",
+                names[*p]
+            )
+        })
+        .collect();
+    let mut out = parts.join("; ");
+    out.push_str(", without these data telling");
+    if let (EffectKind::TireSaturation, Some((_, [lo, _]))) = (kind, nd.ranges.first()) {
+        let _ = write!(
+            out,
+            " (the tyres' grip could peak as low as {:.1} m/s^2 of lateral acceleration)",
+            lo * nominal_mu * 9.81
+        );
+    }
+    out
 }

@@ -40,38 +40,79 @@ pub fn interval(c: &Fitted, fold_fits: &[Vec<Fitted>]) -> Vec<[f64; 2]> {
         .collect()
 }
 
-/// The parameter value that switches a one-parameter effect off.
-fn off_value(kind: EffectKind, nominal_mu: f64) -> Option<f64> {
-    Some(match kind {
+/// What the data leave open about an effect not kept: each scanned parameter's range
+/// that these data cannot tell from "off".
+#[derive(Debug, Clone, PartialEq)]
+pub struct NotDetected {
+    /// Index of a parameter in the effect's vector, and its range.
+    pub ranges: Vec<(usize, [f64; 2])>,
+    /// The effect "off" as the scans hold it: every parameter not being scanned stays at
+    /// this value (for a multi-parameter effect the report names them).
+    pub held: Vec<f64>,
+}
+
+/// C and E of the magic-formula tyre while its peak D is scanned: a typical lateral
+/// shape (Pacejka's C about 1.3-1.6) without the curvature factor, which the fit too
+/// frees only when it pays.
+const SATURATION_SHAPE: [f64; 2] = [1.5, 0.0];
+
+/// The effect switched off, and the parameters to scan from there, each towards one or
+/// both ends of its bounds. One-parameter effects: their parameter, both ways (a gain
+/// above and below 1, an offset either side). `drag`: each coefficient alone from 0,
+/// the other held at 0. `tire_saturation`: its peak D down from its upper bound (a peak
+/// so high that driving below it never bends the curve), C and E at
+/// [`SATURATION_SHAPE`]. `friction_patch`: its mu both ways from the vehicle's, in the
+/// box its best fit chose (`fitted`), where the residual pointed.
+fn scans(kind: EffectKind, nominal_mu: f64, fitted: &[f64]) -> (Vec<f64>, Vec<usize>) {
+    match kind {
         EffectKind::SteeringDelay
         | EffectKind::SteeringLag
         | EffectKind::SteeringOffset
         | EffectKind::SteeringBacklash
         | EffectKind::DriveLag
-        | EffectKind::MeasurementDelay => 0.0,
-        EffectKind::SteeringGain | EffectKind::SpeedGain => 1.0,
-        EffectKind::Friction => nominal_mu,
-        _ => return None,
-    })
+        | EffectKind::MeasurementDelay => (vec![0.0], vec![0]),
+        EffectKind::SteeringGain | EffectKind::SpeedGain => (vec![1.0], vec![0]),
+        EffectKind::Friction => (vec![nominal_mu], vec![0]),
+        EffectKind::Drag => (vec![0.0, 0.0], vec![0, 1]),
+        EffectKind::TireSaturation => {
+            let d_off = kind.bounds()[0].1;
+            (
+                vec![d_off, SATURATION_SHAPE[0], SATURATION_SHAPE[1]],
+                vec![0],
+            )
+        }
+        EffectKind::FrictionPatch => {
+            let mut v = vec![nominal_mu];
+            v.extend_from_slice(fitted.get(1..5).unwrap_or(&[0.0; 4]));
+            (v, vec![0])
+        }
+    }
 }
 
-/// For an effect not kept: how far from "off" its parameter can go, on each side, before
-/// adding it to the final model costs more than `limit` (the cost the margin allows).
+/// For an effect not kept: how far from "off" each of its scanned parameters ([`scans`])
+/// can go, on each side, before adding it to the final model costs more than `limit`
+/// (the cost the margin allows). `fitted`: the effect's best fit (a patch's box).
 pub fn could_be(
     ctx: &FitContext,
     chosen: &[Fitted],
     kind: EffectKind,
+    fitted: &[f64],
     limit: f64,
-) -> Option<[f64; 2]> {
-    let off = off_value(kind, ctx.nominal.mu)?;
-    let (lo, hi) = kind.bounds()[0];
+) -> NotDetected {
+    let (held, params) = scans(kind, ctx.nominal.mu, fitted);
     const STEPS: usize = 12;
-    let side = |end: f64| -> f64 {
+    let side = |p: usize, end: f64| -> f64 {
+        let off = held[p];
+        if end == off {
+            return off;
+        }
         let mut last_ok = off;
         for i in 1..=STEPS {
             let v = off + (end - off) * i as f64 / STEPS as f64;
             let mut fx = chosen.to_vec();
-            fx.push(Fitted::new(kind, vec![v]));
+            let mut values = held.clone();
+            values[p] = v;
+            fx.push(Fitted::new(kind, values));
             if ctx.cost(&fx, &|_| true) > limit {
                 // between the last value passed and this one
                 return 0.5 * (last_ok + v);
@@ -80,7 +121,16 @@ pub fn could_be(
         }
         end
     };
-    Some([side(lo.min(off)), side(hi.max(off))])
+    let bounds = kind.bounds();
+    let ranges = params
+        .into_iter()
+        .map(|p| {
+            let (lo, hi) = bounds[p];
+            let off = held[p];
+            (p, [side(p, lo.min(off)), side(p, hi.max(off))])
+        })
+        .collect();
+    NotDetected { ranges, held }
 }
 
 /// Refit the kept effects jointly, none held at its first value. The steering delay acts
@@ -89,6 +139,15 @@ pub fn could_be(
 /// (every 2 steps over its range, then the neighbours of the best), the others refitted
 /// at each value; it stays held at the best value for the held-out refits.
 pub fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, SysidError> {
+    joint_refit_on(ctx, &[], chosen)
+}
+
+/// [`joint_refit`] of `chosen` with the effects `base` held.
+pub fn joint_refit_on(
+    ctx: &FitContext,
+    base: &[Fitted],
+    chosen: &[Fitted],
+) -> Result<Vec<Fitted>, SysidError> {
     let evals: u64 = chosen.iter().map(|c| budget(c.kind)).sum();
     let trades_off = chosen.iter().any(|c| {
         matches!(
@@ -100,13 +159,13 @@ pub fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, S
         .iter()
         .position(|c| c.kind == EffectKind::SteeringDelay);
     let Some(di) = di.filter(|_| trades_off) else {
-        return Ok(ctx.fit(&[], chosen, &|_| true, evals)?.0);
+        return Ok(ctx.fit(base, chosen, &|_| true, evals)?.0);
     };
     let at = |n: usize| -> Result<(Vec<Fitted>, f64), SysidError> {
         let mut fx = chosen.to_vec();
         fx[di].values[0] = n as f64 * crate::replay::DT;
         fx[di].pinned = vec![0];
-        ctx.fit(&[], &fx, &|_| true, evals / 2)
+        ctx.fit(base, &fx, &|_| true, evals / 2)
     };
     let max_n = (EffectKind::SteeringDelay.bounds()[0].1 / crate::replay::DT).round() as usize;
     let coarse: Vec<usize> = (0..=max_n).step_by(2).collect();
@@ -137,6 +196,10 @@ pub fn joint_refit(ctx: &FitContext, chosen: &[Fitted]) -> Result<Vec<Fitted>, S
         .expect("at least one delay tried");
     Ok(best)
 }
+
+/// The delay-like effects: a candidate among them is fitted together with those already
+/// kept ([`crate::fit::FitContext::evidence`]).
+pub const DELAY_LIKE: &[EffectKind] = CONFUSABLE[0];
 
 /// Groups of effects that can stand in for each other.
 const CONFUSABLE: [&[EffectKind]; 4] = [
@@ -297,6 +360,111 @@ pub fn profile(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fit::FitContext;
+    use crate::recording::{Command, Recording, StateSample};
+    use crate::replay::Replay;
+    use paddock_sim::dynamics::Vehicle;
+    use paddock_sim::geometry::Pose;
+    use paddock_sim::params::VehicleParams;
+
+    /// 12 s of the nominal car weaving at 2 and 5 m/s, logged at 50 Hz with noise.
+    fn nominal_drive() -> Recording {
+        let p = VehicleParams::default();
+        let mut rng = paddock_sim::rng::Rng::new(3);
+        let mut car = Vehicle::new(Pose::new(0.0, 0.0, 0.0));
+        let mut rec = Recording::default();
+        for k in 0..1200 {
+            let t = k as f64 * crate::replay::DT;
+            let speed = if ((t / 3.0) as usize).is_multiple_of(2) {
+                2.0
+            } else {
+                5.0
+            };
+            let steer = 0.08 * libm::sin(std::f64::consts::TAU * t / 2.5);
+            if k % 2 == 0 {
+                let (vx, vy) = car.body_velocity();
+                let s = car.state;
+                let mut n = |sd: f64| sd * rng.normal();
+                rec.states.push(StateSample {
+                    t,
+                    x: s.x + n(0.01),
+                    y: s.y + n(0.01),
+                    yaw: crate::recording::wrap_pi(s.yaw + n(0.005)),
+                    vx: vx + n(0.03),
+                    vy: vy + n(0.02),
+                    yaw_rate: s.yaw_rate + n(0.02),
+                });
+                rec.commands.push(Command { t, steer, speed });
+            }
+            car.step(&p, steer, speed, crate::replay::DT);
+        }
+        rec
+    }
+
+    /// Every effect not kept gets a "could be up to" range, multi-parameter ones too
+    /// (drag, tire_saturation and friction_patch got none): each scanned parameter's
+    /// range starts at "off" and reaches some way out, the others held where documented.
+    #[test]
+    fn every_effect_not_kept_gets_a_could_be_range() {
+        let rec = nominal_drive();
+        let replay = Replay::new(&rec, 1.0);
+        let nominal = VehicleParams::default();
+        let n_w = replay.n_windows();
+        let ctx = FitContext {
+            replay: &replay,
+            nominal: &nominal,
+            fold_of_window: (0..n_w).map(|w| w * 3 / n_w).collect(),
+            folds: 3,
+            extent: [-30.0, -30.0, 30.0, 30.0],
+            patch_seeds: Vec::new(),
+            seed: 1,
+            effort: 1.0,
+        };
+        let limit = ctx.cost(&[], &|_| true) * 1.03;
+        let patch_box = [0.0, -3.0, 6.0, 3.0];
+        for kind in crate::effects::ALL {
+            let mut fitted = kind.start(&nominal);
+            if kind == EffectKind::FrictionPatch {
+                fitted = [&[0.5][..], &patch_box[..]].concat();
+            }
+            let nd = could_be(&ctx, &[], kind, &fitted, limit);
+            assert!(!nd.ranges.is_empty(), "{}: {nd:?}", kind.name());
+            for &(p, [lo, hi]) in &nd.ranges {
+                let off = nd.held[p];
+                let (blo, bhi) = kind.bounds()[p];
+                assert!(
+                    blo <= lo && lo <= off && off <= hi && hi <= bhi && hi - lo > 0.0,
+                    "{} {}: [{lo}, {hi}] around {off}",
+                    kind.name(),
+                    kind.param_names()[p]
+                );
+            }
+        }
+        let nd = |k: EffectKind, f: &[f64]| could_be(&ctx, &[], k, f, limit);
+        // drag: each coefficient alone from 0, the other at 0
+        let drag = nd(EffectKind::Drag, &[0.1, 0.01]);
+        assert_eq!(drag.held, vec![0.0, 0.0]);
+        assert_eq!(drag.ranges.iter().map(|r| r.0).collect::<Vec<_>>(), [0, 1]);
+        assert!(
+            drag.ranges
+                .iter()
+                .all(|(_, [lo, hi])| *lo == 0.0 && *hi > 0.0)
+        );
+        // tire saturation: the peak D down from its bound, C 1.5 and E 0
+        let tire = nd(EffectKind::TireSaturation, &[0.7, 2.0, 0.5]);
+        assert_eq!(tire.held, vec![1.6, 1.5, 0.0]);
+        let [(0, [lo, hi])] = tire.ranges[..] else {
+            panic!("{tire:?}")
+        };
+        assert!(lo < 1.6 && hi == 1.6, "{tire:?}");
+        // friction patch: mu both ways from the vehicle's, in the fitted box
+        let patch = nd(EffectKind::FrictionPatch, &[0.5, 0.0, -3.0, 6.0, 3.0]);
+        assert_eq!(patch.held[1..], patch_box);
+        let [(0, [lo, hi])] = patch.ranges[..] else {
+            panic!("{patch:?}")
+        };
+        assert!(lo < nominal.mu && nominal.mu < hi, "{patch:?}");
+    }
 
     fn evidence(kind: EffectKind, gain: f64) -> Evidence {
         Evidence {
