@@ -57,8 +57,8 @@ struct AnalyseArgs {
     /// Held-out improvement an effect must beat, per parameter (0.03 = 3 %).
     #[arg(long, default_value_t = 0.03, value_parser = args::number(0.0, 1.0))]
     margin: f64,
-    /// Only test these effects (comma-separated names; default: all but
-    /// measurement_delay, which is tested only when named).
+    /// Only test these effects (comma-separated names; default: every effect of the
+    /// vocabulary).
     #[arg(long, value_delimiter = ',')]
     effects: Vec<String>,
     /// Optimiser seed.
