@@ -70,6 +70,9 @@ pub struct Lidar {
     reference: reference::TrigTable,
     /// The march's code path; `None`: the widest the CPU supports.
     path: Option<ScanPath>,
+    /// Whether each box is tested only on the beams that can meet it (tests turn it off
+    /// to compare with testing every beam).
+    cull_boxes: bool,
 }
 
 impl Lidar {
@@ -93,6 +96,7 @@ impl Lidar {
             beam_sin,
             reference,
             path: None,
+            cull_boxes: true,
         }
     }
 
@@ -173,7 +177,14 @@ impl Lidar {
                     && b.half_length >= 0.0
                     && b.half_width >= 0.0
             })
-            .map(BoxFrame::new)
+            .map(|b| {
+                let frame = BoxFrame::new(b);
+                if self.cull_boxes {
+                    frame.towards(self.beams_towards(b, x, y, pose.theta))
+                } else {
+                    frame.towards([0..self.config.num_beams, 0..0])
+                }
+            })
             .collect();
         let job = ScanJob {
             x,
@@ -244,12 +255,16 @@ impl Lidar {
             let beam_sin = &self.beam_sin[start..start + len];
             let limits = &mut limits[..len];
             limits.fill(job.max_range);
-            if !job.boxes.is_empty() {
-                // The nearest box first, so that the grid march stops early behind it.
-                for ((lim, &bc), &bs) in limits.iter_mut().zip(beam_cos).zip(beam_sin) {
-                    let (dx, dy) = (job.wc * bc - job.ws * bs, job.ws * bc + job.wc * bs);
-                    for b in job.boxes {
+            // The boxes first, so that the grid march stops early behind them; each box
+            // only on the beams that can meet it.
+            for b in job.boxes {
+                for beams in &b.beams {
+                    let (lo, hi) = (beams.start.max(start), beams.end.min(start + len));
+                    for j in lo..hi {
+                        let (bc, bs) = (self.beam_cos[j], self.beam_sin[j]);
+                        let (dx, dy) = (job.wc * bc - job.ws * bs, job.ws * bc + job.wc * bs);
                         if let Some(t) = b.ray(job.x, job.y, dx, dy) {
+                            let lim = &mut limits[j - start];
                             *lim = lim.min(t);
                         }
                     }
@@ -271,6 +286,65 @@ impl Lidar {
             start += len;
         }
         SCAN_BATCH.set(Some(batch));
+    }
+
+    /// This LIDAR testing every box on every beam (for tests of the culling).
+    #[cfg(test)]
+    fn with_every_beam_on_boxes(mut self) -> Self {
+        self.cull_boxes = false;
+        self
+    }
+
+    /// The beams (one or two index ranges) that can meet box `b` from the scan origin
+    /// (x, y) of a car heading `theta`: from outside the box's circumscribed circle the
+    /// directions that meet a convex box are those between its corners', so the beams
+    /// within that span and two beyond each end (far more than rounding needs); every beam
+    /// from nearer, or when the fan's beams could wrap round. A beam left out would have
+    /// missed the box: the ranges are the same bits as testing every beam.
+    fn beams_towards(&self, b: &Obb, x: f64, y: f64, theta: f64) -> [std::ops::Range<usize>; 2] {
+        use std::f64::consts::{PI, TAU};
+        let n = self.config.num_beams;
+        let fov = self.config.fov;
+        let all = [0..n, 0..0];
+        let (ex, ey) = (b.cx - x, b.cy - y);
+        let outside = libm::hypot(ex, ey) > 1.000_001 * b.circumradius() + 1e-9;
+        if n < 2 || !(fov > 0.0 && fov < PI * 1.9) || !outside {
+            return all;
+        }
+        let inc = fov / (n - 1) as f64;
+        let wrap = |a: f64| {
+            if a > PI {
+                a - TAU
+            } else if a <= -PI {
+                a + TAU
+            } else {
+                a
+            }
+        };
+        let centre = libm::atan2(ey, ex);
+        let (mut lo, mut hi) = (0.0f64, 0.0f64);
+        for (qx, qy) in b.corners() {
+            let beta = wrap(libm::atan2(qy - y, qx - x) - centre);
+            lo = lo.min(beta);
+            hi = hi.max(beta);
+        }
+        let rel = wrap((centre - theta).rem_euclid(TAU));
+        let mut out = [0..0, 0..0];
+        let mut k = 0;
+        for shift in [-TAU, 0.0, TAU] {
+            let (a, z) = (rel + lo + shift + fov / 2.0, rel + hi + shift + fov / 2.0);
+            let first = (a / inc).ceil() - 2.0;
+            let last = (z / inc).floor() + 2.0;
+            if !(first.is_finite() && last.is_finite()) {
+                return all;
+            }
+            let (first, last) = (first.max(0.0), last.min((n - 1) as f64));
+            if first <= last && k < 2 {
+                out[k] = first as usize..last as usize + 1;
+                k += 1;
+            }
+        }
+        out
     }
 
     /// The f1tenth_gym reference scan (no noise), bit-for-bit: beam directions from its
@@ -316,7 +390,8 @@ struct ScanJob<'a> {
     boxes: &'a [BoxFrame],
 }
 
-/// A box prepared for many rays: centre, axes and half extents.
+/// A box prepared for many rays: centre, axes and half extents, and the beams that can
+/// meet it.
 struct BoxFrame {
     cx: f64,
     cy: f64,
@@ -324,6 +399,7 @@ struct BoxFrame {
     s: f64,
     hl: f64,
     hw: f64,
+    beams: [std::ops::Range<usize>; 2],
 }
 
 impl BoxFrame {
@@ -336,7 +412,12 @@ impl BoxFrame {
             s,
             hl: b.half_length,
             hw: b.half_width,
+            beams: [0..usize::MAX, 0..0],
         }
+    }
+
+    fn towards(self, beams: [std::ops::Range<usize>; 2]) -> Self {
+        Self { beams, ..self }
     }
 
     #[inline]

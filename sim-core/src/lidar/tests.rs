@@ -383,3 +383,74 @@ fn scan_is_bit_identical_across_simd_paths() {
         }
     }
 }
+
+/// Testing each box only on the beams within its angular span gives the same bits as
+/// testing it on every beam: cars near and far, behind the car and across the ends of
+/// the beam fan, rotated, overlapping the origin's circle, with headings of any turn, on
+/// the default fan and on a narrow and a nearly full one.
+#[test]
+fn boxes_tested_on_their_beams_only_give_the_same_bits() {
+    let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
+    let map = &circuit.map;
+    let track = &circuit.track;
+    let configs = [
+        LidarConfig::default(),
+        LidarConfig {
+            num_beams: 64,
+            fov: 1.0,
+            ..LidarConfig::default()
+        },
+        LidarConfig {
+            num_beams: 721,
+            fov: 5.9,
+            max_range: 10.0,
+            ..LidarConfig::default()
+        },
+    ];
+    let mut rng = Rng::new(11);
+    // beams that met a box before the walls
+    let mut on_boxes = 0;
+    for config in configs {
+        let culled = Lidar::new(config.clone());
+        let every = Lidar::new(config).with_every_beam_on_boxes();
+        let n = culled.num_beams();
+        let (mut a, mut b, mut walls) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        for k in 0..400 {
+            let (on_line, _, _) = track.at(rng.uniform_range(0.0, track.length()));
+            let turns = rng.below(5) as f64 - 2.0;
+            let pose = Pose::new(
+                on_line.x + rng.uniform_range(-1.0, 1.0),
+                on_line.y + rng.uniform_range(-1.0, 1.0),
+                rng.uniform_range(-std::f64::consts::PI, std::f64::consts::PI)
+                    + turns * std::f64::consts::TAU,
+            );
+            let reach = if k % 4 == 0 { 0.6 } else { 6.0 };
+            let cars: Vec<Obb> = (0..1 + rng.below(4))
+                .map(|_| {
+                    let car = Pose::new(
+                        pose.x + rng.uniform_range(-reach, reach),
+                        pose.y + rng.uniform_range(-reach, reach),
+                        rng.uniform_range(-4.0, 4.0),
+                    );
+                    Obb::car(
+                        car,
+                        rng.uniform_range(0.1, 1.2),
+                        rng.uniform_range(0.05, 0.6),
+                    )
+                })
+                .collect();
+            culled.scan(map, pose, &cars, &mut a);
+            every.scan(map, pose, &cars, &mut b);
+            for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+                assert_eq!(
+                    x.to_bits(),
+                    y.to_bits(),
+                    "beam {i} from {pose:?} with {cars:?}"
+                );
+            }
+            culled.scan(map, pose, &[], &mut walls);
+            on_boxes += a.iter().zip(&walls).filter(|(x, w)| x < w).count();
+        }
+    }
+    assert!(on_boxes > 50_000, "only {on_boxes} beams met a box");
+}
