@@ -22,7 +22,7 @@ pub use path::{ScanPath, ScanPathError, cpu_features};
 
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{Obb, Pose};
+use crate::geometry::{Obb, Pose, wrap_angle};
 use crate::map::Map;
 use crate::rng::Rng;
 
@@ -178,12 +178,12 @@ impl Lidar {
                     && b.half_width >= 0.0
             })
             .map(|b| {
-                let frame = BoxFrame::new(b);
-                if self.cull_boxes {
-                    frame.towards(self.beams_towards(b, x, y, pose.theta))
+                let beams = if self.cull_boxes {
+                    self.beams_towards(b, x, y, pose.theta)
                 } else {
-                    frame.towards([0..self.config.num_beams, 0..0])
-                }
+                    [0..self.config.num_beams, 0..0]
+                };
+                BoxFrame::new(b, beams)
             })
             .collect();
         let job = ScanJob {
@@ -312,23 +312,14 @@ impl Lidar {
             return all;
         }
         let inc = fov / (n - 1) as f64;
-        let wrap = |a: f64| {
-            if a > PI {
-                a - TAU
-            } else if a <= -PI {
-                a + TAU
-            } else {
-                a
-            }
-        };
         let centre = libm::atan2(ey, ex);
         let (mut lo, mut hi) = (0.0f64, 0.0f64);
         for (qx, qy) in b.corners() {
-            let beta = wrap(libm::atan2(qy - y, qx - x) - centre);
+            let beta = wrap_angle(libm::atan2(qy - y, qx - x) - centre);
             lo = lo.min(beta);
             hi = hi.max(beta);
         }
-        let rel = wrap((centre - theta).rem_euclid(TAU));
+        let rel = wrap_angle(centre - theta);
         let mut out = [0..0, 0..0];
         let mut k = 0;
         for shift in [-TAU, 0.0, TAU] {
@@ -403,7 +394,8 @@ struct BoxFrame {
 }
 
 impl BoxFrame {
-    fn new(b: &Obb) -> Self {
+    /// `b`, to be tested on the beams with indices in `beams`.
+    fn new(b: &Obb, beams: [std::ops::Range<usize>; 2]) -> Self {
         let (s, c) = libm::sincos(b.theta);
         Self {
             cx: b.cx,
@@ -412,12 +404,8 @@ impl BoxFrame {
             s,
             hl: b.half_length,
             hw: b.half_width,
-            beams: [0..usize::MAX, 0..0],
+            beams,
         }
-    }
-
-    fn towards(self, beams: [std::ops::Range<usize>; 2]) -> Self {
-        Self { beams, ..self }
     }
 
     #[inline]
@@ -442,7 +430,7 @@ pub fn ray_obb(ox: f64, oy: f64, dx: f64, dy: f64, obb: &Obb) -> Option<f64> {
     if !(obb.half_length >= 0.0 && obb.half_width >= 0.0) {
         return None;
     }
-    BoxFrame::new(obb).ray(ox, oy, dx, dy)
+    BoxFrame::new(obb, [0..0, 0..0]).ray(ox, oy, dx, dy)
 }
 
 /// Slab test on the axis-aligned box [-hx, hx] x [-hy, hy].
