@@ -136,16 +136,7 @@ fn drive(
     if worlds > 1 {
         return drive_batch(circuit, agents, worlds, scan, seconds, vehicle);
     }
-    let mut config = WorldConfig::with_agents(agents);
-    config.collision_mode = CollisionMode::Stop;
-    for a in &mut config.agents {
-        a.scan = scan.is_some();
-        a.params = vehicle.clone();
-    }
-    let mut world = World::new(circuit.clone(), config)?;
-    if let Some(path) = scan {
-        world.set_scan_path(path)?;
-    }
+    let mut world = perf_world(circuit, agents, scan, vehicle)?;
     let mut drivers: Vec<PurePursuit> = (0..agents)
         .map(|_| PurePursuit::on_circuit(circuit, PurePursuitParams::default()))
         .collect();
@@ -182,6 +173,27 @@ fn drive(
     })
 }
 
+/// A world of `agents` cars of `vehicle` on `circuit` (Stop mode), scanning on `path`
+/// unless it is `None`.
+fn perf_world(
+    circuit: &std::sync::Arc<Circuit>,
+    agents: usize,
+    scan: Option<ScanPath>,
+    vehicle: &paddock_sim::params::VehicleParams,
+) -> Result<World> {
+    let mut config = WorldConfig::with_agents(agents);
+    config.collision_mode = CollisionMode::Stop;
+    for a in &mut config.agents {
+        a.scan = scan.is_some();
+        a.params = vehicle.clone();
+    }
+    let mut world = World::new(circuit.clone(), config)?;
+    if let Some(path) = scan {
+        world.set_scan_path(path)?;
+    }
+    Ok(world)
+}
+
 /// This thread's CPU time so far.
 fn thread_cpu() -> Duration {
     use nix::time::{ClockId, clock_gettime};
@@ -197,16 +209,7 @@ fn drive_batch(
     seconds: f64,
     vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<Run> {
-    let mut config = WorldConfig::with_agents(agents);
-    config.collision_mode = CollisionMode::Stop;
-    for a in &mut config.agents {
-        a.scan = scan.is_some();
-        a.params = vehicle.clone();
-    }
-    let mut world = World::new(circuit.clone(), config)?;
-    if let Some(path) = scan {
-        world.set_scan_path(path)?;
-    }
+    let world = perf_world(circuit, agents, scan, vehicle)?;
     let beams = world.config().lidar.num_beams;
     let mut batch = Worlds::of(&world, worlds);
     let cars = worlds * agents;
