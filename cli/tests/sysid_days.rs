@@ -44,6 +44,15 @@ struct Outcome {
     others: Vec<String>,
 }
 
+/// `paddock sysid synth ARGS --out DAY`, which must succeed.
+fn synth(day: &str, args: &[&str]) {
+    let mut all = vec!["sysid", "synth"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", day]);
+    let (ok, _, err) = paddock(&all);
+    assert!(ok, "synth {day}: {err}");
+}
+
 /// A test day: `runs` runs of `manoeuvres`, pose and speed only at `rate` Hz, with
 /// `effect` hidden; analysed with `candidates`; the outcome for the hidden effect.
 fn day(effect: &str, param: &str, manoeuvres: &str, candidates: &str, seed: u64) -> Outcome {
@@ -54,25 +63,23 @@ fn day(effect: &str, param: &str, manoeuvres: &str, candidates: &str, seed: u64)
     // the logging rate and the starts vary with the seed: 20 to 50 Hz
     let rate = ["20", "30", "40", "50"][(seed % 4) as usize];
     let seed_s = seed.to_string();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "synth",
-        "--manoeuvre",
-        manoeuvres,
-        "--runs",
-        "12",
-        "--rate",
-        rate,
-        "--channels",
-        "pose+speed",
-        "--effect",
-        effect,
-        "--seed",
-        &seed_s,
-        "--out",
+    synth(
         &day_s,
-    ]);
-    assert!(ok, "synth {name}: {err}");
+        &[
+            "--manoeuvre",
+            manoeuvres,
+            "--runs",
+            "12",
+            "--rate",
+            rate,
+            "--channels",
+            "pose+speed",
+            "--effect",
+            effect,
+            "--seed",
+            &seed_s,
+        ],
+    );
     let out = dir.join("out");
     let out_s = out.to_str().unwrap();
     let (ok, _, err) = paddock(&[
@@ -240,23 +247,21 @@ fn recordings_with_different_channels_are_scored_in_every_channel() {
     ] {
         let d = dir.join(name);
         let d_s = d.to_str().unwrap().to_string();
-        let (ok, _, err) = paddock(&[
-            "sysid",
-            "synth",
-            "--manoeuvre",
-            "step,arc,speed-step",
-            "--runs",
-            runs,
-            "--channels",
-            channels,
-            "--effect",
-            "steering_gain:gain=0.8",
-            "--seed",
-            seed,
-            "--out",
+        synth(
             &d_s,
-        ]);
-        assert!(ok, "{err}");
+            &[
+                "--manoeuvre",
+                "step,arc,speed-step",
+                "--runs",
+                runs,
+                "--channels",
+                channels,
+                "--effect",
+                "steering_gain:gain=0.8",
+                "--seed",
+                seed,
+            ],
+        );
         recs.push(d_s);
     }
     let out = dir.join("out");
@@ -297,23 +302,21 @@ fn every_candidate_not_kept_says_what_it_could_be() {
     let dir = scratch("could-be");
     let day = dir.join("day");
     let day_s = day.to_str().unwrap().to_string();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "synth",
-        "--manoeuvre",
-        "step,arc,speed-step",
-        "--runs",
-        "6",
-        "--channels",
-        "pose+speed",
-        "--effect",
-        "steering_gain:gain=0.8",
-        "--seed",
-        "5",
-        "--out",
+    synth(
         &day_s,
-    ]);
-    assert!(ok, "{err}");
+        &[
+            "--manoeuvre",
+            "step,arc,speed-step",
+            "--runs",
+            "6",
+            "--channels",
+            "pose+speed",
+            "--effect",
+            "steering_gain:gain=0.8",
+            "--seed",
+            "5",
+        ],
+    );
     let out = dir.join("out");
     let out_s = out.to_str().unwrap();
     let (ok, stdout, err) = paddock(&[
@@ -387,23 +390,21 @@ fn residual_map_of_a_pose_only_day_is_coloured_with_a_scale() {
     let dir = scratch("map");
     let day = dir.join("day");
     let day_s = day.to_str().unwrap().to_string();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "synth",
-        "--manoeuvre",
-        "step,arc",
-        "--runs",
-        "6",
-        "--channels",
-        "pose+speed",
-        "--effect",
-        "steering_gain:gain=0.8",
-        "--seed",
-        "5",
-        "--out",
+    synth(
         &day_s,
-    ]);
-    assert!(ok, "{err}");
+        &[
+            "--manoeuvre",
+            "step,arc",
+            "--runs",
+            "6",
+            "--channels",
+            "pose+speed",
+            "--effect",
+            "steering_gain:gain=0.8",
+            "--seed",
+            "5",
+        ],
+    );
     let out = dir.join("out");
     let out_s = out.to_str().unwrap();
     let (ok, _, err) = paddock(&[
