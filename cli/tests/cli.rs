@@ -1,19 +1,10 @@
 //! The `paddock` binary end to end: perf, demo, maps list and generate, errors.
 
-use std::path::PathBuf;
-use std::process::Command;
+mod common;
 
-fn paddock(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_paddock"))
-        .args(args)
-        .output()
-        .expect("run paddock");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use common::paddock;
+
+use std::path::PathBuf;
 
 #[test]
 fn perf_json_has_the_documented_keys() {

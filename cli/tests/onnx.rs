@@ -2,23 +2,15 @@
 //! file locally (deterministically, a NaN action a crash), `paddock onnx-check` prints the
 //! same actions as the library, bad models are refused with the library's message.
 
+mod common;
+
+use common::paddock;
+
 use std::path::Path;
 use std::process::Command;
 
 use paddock_policy::onnx::{OnnxPolicy, model_hash, write};
 use paddock_sim::lidar::LidarConfig;
-
-fn paddock(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_paddock"))
-        .args(args)
-        .output()
-        .expect("run paddock");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn write_model(dir: &Path, name: &str, bytes: &[u8]) -> String {
     let p = dir.join(name);

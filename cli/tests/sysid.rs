@@ -4,32 +4,19 @@
 //! clear error. Run in release (`cargo test --release -p paddock --test sysid`): each case
 //! writes a 40-s recording and analyses it.
 
+mod common;
+
+use common::paddock;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use paddock_sim::params::VehicleParams;
 use paddock_sysid::recording::{McapTopics, Recording};
 use paddock_sysid::replay::Replay;
 use serde_json::Value;
 
-fn paddock(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_paddock"))
-        .args(args)
-        .output()
-        .expect("run paddock");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 fn scratch(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("paddock-sysid-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("sysid-test", name)
 }
 
 /// Write a recording with `effects` hidden, analyse it, return (report, truth, dir).

@@ -7,29 +7,16 @@
 //! kept and an interval that covers the truth in at least 90 % of them. Run in
 //! release (`cargo test --release --workspace --test sysid_days`).
 
+mod common;
+
+use common::paddock;
+
 use std::path::PathBuf;
-use std::process::Command;
 
 use serde_json::Value;
 
-fn paddock(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_paddock"))
-        .args(args)
-        .output()
-        .expect("run paddock");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 fn scratch(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("paddock-sysid-days-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("sysid-days", name)
 }
 
 /// One repeat's outcome for the hidden effect.

@@ -1,20 +1,12 @@
 //! `--video` end to end: `paddock rollout` and `paddock benchmark` write GIFs that decode
 //! back to one frame per trajectory sample, the same bytes on every run.
 
+mod common;
+
+use common::paddock;
+
 use std::path::Path;
 use std::process::Command;
-
-fn paddock(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_paddock"))
-        .args(args)
-        .output()
-        .expect("run paddock");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// (screen width, screen height, frames, the last frame composited as RGB).
 fn decode(path: &Path) -> (u32, u32, usize, Vec<u8>) {
