@@ -40,6 +40,28 @@ fn synth(day: &str, args: &[&str]) {
     assert!(ok, "synth {day}: {err}");
 }
 
+/// A small pose-and-speed day of `manoeuvres` in `dir/day` (six runs, the wheels turning
+/// 80 % of the command); its path.
+fn gain_day(dir: &std::path::Path, manoeuvres: &str) -> String {
+    let day = dir.join("day").to_str().unwrap().to_string();
+    synth(
+        &day,
+        &[
+            "--manoeuvre",
+            manoeuvres,
+            "--runs",
+            "6",
+            "--channels",
+            "pose+speed",
+            "--effect",
+            "steering_gain:gain=0.8",
+            "--seed",
+            "5",
+        ],
+    );
+    day
+}
+
 /// A test day: `runs` runs of `manoeuvres`, pose and speed only at `rate` Hz, with
 /// `effect` hidden; analysed with `candidates`; the outcome for the hidden effect.
 fn day(effect: &str, param: &str, manoeuvres: &str, candidates: &str, seed: u64) -> Outcome {
@@ -287,23 +309,7 @@ fn recordings_with_different_channels_are_scored_in_every_channel() {
 #[test]
 fn every_candidate_not_kept_says_what_it_could_be() {
     let dir = scratch("could-be");
-    let day = dir.join("day");
-    let day_s = day.to_str().unwrap().to_string();
-    synth(
-        &day_s,
-        &[
-            "--manoeuvre",
-            "step,arc,speed-step",
-            "--runs",
-            "6",
-            "--channels",
-            "pose+speed",
-            "--effect",
-            "steering_gain:gain=0.8",
-            "--seed",
-            "5",
-        ],
-    );
+    let day_s = gain_day(&dir, "step,arc,speed-step");
     let out = dir.join("out");
     let out_s = out.to_str().unwrap();
     let (ok, stdout, err) = paddock(&[
@@ -375,23 +381,7 @@ fn coloured_pixels(png: &std::path::Path, x0: u32, x1: u32) -> usize {
 #[test]
 fn residual_map_of_a_pose_only_day_is_coloured_with_a_scale() {
     let dir = scratch("map");
-    let day = dir.join("day");
-    let day_s = day.to_str().unwrap().to_string();
-    synth(
-        &day_s,
-        &[
-            "--manoeuvre",
-            "step,arc",
-            "--runs",
-            "6",
-            "--channels",
-            "pose+speed",
-            "--effect",
-            "steering_gain:gain=0.8",
-            "--seed",
-            "5",
-        ],
-    );
+    let day_s = gain_day(&dir, "step,arc");
     let out = dir.join("out");
     let out_s = out.to_str().unwrap();
     let (ok, _, err) = paddock(&[
