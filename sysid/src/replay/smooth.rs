@@ -36,19 +36,11 @@ fn local_line(
     if used.len() < min {
         return None;
     }
-    let n = used.len() as f64;
-    let tm = used.iter().map(|s| s.t - t).sum::<f64>() / n;
-    let var = used.iter().map(|s| (s.t - t - tm).powi(2)).sum::<f64>();
-    let ym = used.iter().map(|s| y(s)).sum::<f64>() / n;
-    let slope = if var > 1e-12 {
-        used.iter()
-            .map(|s| (s.t - t - tm) * (y(s) - ym))
-            .sum::<f64>()
-            / var
-    } else {
-        0.0
-    };
-    Some((ym - slope * tm, slope))
+    // all samples at one instant: their mean, flat
+    weighted_line(used.iter().map(|s| (s.t - t, y(s), 1.0))).or_else(|| {
+        let ym = used.iter().map(|s| y(s)).sum::<f64>() / used.len() as f64;
+        Some((ym, 0.0))
+    })
 }
 
 /// The recorded state at `t`, smoothed by a local linear fit over nearby samples of one
