@@ -11,7 +11,7 @@ const STEP: i32 = EnvOp::EnvStep as i32;
 const CLOSE: i32 = EnvOp::EnvClose as i32;
 
 fn lakeside() -> MapRef {
-    paddock_wire::map_ref(&paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap())
+    paddock_wire::map_ref(&paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap()) // ok: test
 }
 
 fn open_msg(num_envs: u32) -> EnvOpen {
@@ -47,7 +47,7 @@ fn expect_obs(r: Reply) -> (EnvObservation, Vec<u8>) {
     let views: Vec<&[u8]> = r.frames.iter().map(Vec::as_slice).collect();
     assert_eq!(r.header.fingerprint, paddock_proto::fingerprint(&views));
     (
-        EnvObservation::decode(r.frames[0].as_slice()).unwrap(),
+        EnvObservation::decode(r.frames[0].as_slice()).unwrap(), // ok: test
         r.frames[1].clone(),
     )
 }
@@ -56,7 +56,7 @@ fn open(s: &mut Sessions, id: u64, n: u32) -> EnvOpened {
     let r = s.handle(id, OPEN, &open_msg(n).encode_to_vec());
     assert!(r.header.error.is_none(), "{:?}", r.header.error);
     assert_eq!(r.header.session_id, id);
-    EnvOpened::decode(r.frames[0].as_slice()).unwrap()
+    EnvOpened::decode(r.frames[0].as_slice()).unwrap() // ok: test
 }
 
 fn actions(n: usize) -> Vec<u8> {
@@ -94,20 +94,20 @@ fn open_reset_step_close() {
     assert_eq!(meta.states.len(), 3 * STATE_SIZE * 8);
     assert_eq!(meta.terminated, vec![0; 3]);
     assert_eq!(meta.agent_lap_counts.len(), 3 * 4);
-    let scans = unpack_f32(&scans, "scans").unwrap();
+    let scans = unpack_f32(&scans, "scans").unwrap(); // ok: test
     assert!(scans.iter().all(|&x| x > 0.0 && x < 31.0));
     let r = s.handle(id, STEP, &step(actions(3)));
     assert!(!r.header.restart);
     let fingerprint = r.header.fingerprint;
     let (st, st_scans) = expect_obs(r);
-    let time = unpack_f64(&st.time, "time").unwrap();
+    let time = unpack_f64(&st.time, "time").unwrap(); // ok: test
     assert_eq!(time, vec![0.02; 3]);
     // the same through a VecEnv directly: the frames are its frame, packed (the
     // session's worlds write the scans frame themselves: the same bytes)
-    let cfg = paddock_wire::env::config_from_proto(&open_msg(3), "lakeside", None).unwrap();
-    let mut env = VecEnv::new(&Circuits::new(), cfg).unwrap();
-    env.reset(&[], &[1, 2, 3], None).unwrap();
-    let f = env.step(&[0.0, 2.0, 0.0, 2.0, 0.0, 2.0], &[]).unwrap();
+    let cfg = paddock_wire::env::config_from_proto(&open_msg(3), "lakeside", None).unwrap(); // ok: test
+    let mut env = VecEnv::new(&Circuits::new(), cfg).unwrap(); // ok: test
+    env.reset(&[], &[1, 2, 3], None).unwrap(); // ok: test
+    let f = env.step(&[0.0, 2.0, 0.0, 2.0, 0.0, 2.0], &[]).unwrap(); // ok: test
     let (meta, packed) = paddock_wire::env::observation_frames(f);
     assert_eq!(meta, st);
     assert_eq!(packed, st_scans);
@@ -147,7 +147,7 @@ fn learner_cars_take_one_action_row_each() {
         ..Default::default()
     }];
     let r = s.handle(1, OPEN, &o.encode_to_vec());
-    let opened = EnvOpened::decode(r.frames[0].as_slice()).unwrap();
+    let opened = EnvOpened::decode(r.frames[0].as_slice()).unwrap(); // ok: test
     assert_eq!((opened.num_agents, opened.num_learners), (3, 2));
     let e = expect_err(s.handle(1, STEP, &step(actions(2))));
     assert!(
@@ -185,7 +185,7 @@ fn a_worker_vehicle_replaces_only_the_default_one() {
         driver: "pure-pursuit".into(),
         ..Default::default()
     }];
-    let cfg = paddock_wire::env::config_from_proto(&o, "lakeside", Some(&fitted)).unwrap();
+    let cfg = paddock_wire::env::config_from_proto(&o, "lakeside", Some(&fitted)).unwrap(); // ok: test
     assert_eq!(cfg.vehicle, fitted);
     assert_eq!(cfg.opponents[0].vehicle, fitted);
     // a request that carries its own vehicle keeps it
@@ -196,11 +196,11 @@ fn a_worker_vehicle_replaces_only_the_default_one() {
     o.vehicle_yaml = own.to_yaml_string();
     assert_eq!(
         paddock_wire::env::config_from_proto(&o, "lakeside", Some(&fitted))
-            .unwrap()
+            .unwrap() // ok: test
             .vehicle,
         own
     );
-    let plain = paddock_wire::env::config_from_proto(&open_msg(1), "lakeside", None).unwrap();
+    let plain = paddock_wire::env::config_from_proto(&open_msg(1), "lakeside", None).unwrap(); // ok: test
     assert_eq!(plain.vehicle, VehicleParams::default());
 }
 
@@ -258,7 +258,7 @@ fn bad_requests_name_the_field() {
     assert_eq!(e.field, "env_open.frame_skip");
     let e = bad_open(|o| o.map = None);
     assert_eq!(e.field, "env_open.map");
-    let e = bad_open(|o| o.map.as_mut().unwrap().hash = "ab".repeat(32));
+    let e = bad_open(|o| o.map.as_mut().unwrap().hash = "ab".repeat(32)); // ok: test
     assert_eq!(
         (e.code, e.field.as_str()),
         (ErrorCode::NotFound as i32, "env_open.map.hash")
@@ -277,11 +277,11 @@ fn bad_requests_name_the_field() {
         ..Default::default()
     }];
     let r = Sessions::new().handle(1, OPEN, &with_opponent.encode_to_vec());
-    let o = EnvOpened::decode(r.frames[0].as_slice()).unwrap();
+    let o = EnvOpened::decode(r.frames[0].as_slice()).unwrap(); // ok: test
     assert_eq!(o.num_agents, 2, "no parameters = the defaults");
     let e = bad_open(|o| o.vehicle_yaml = "v_max: .nan".into());
     assert!(e.field.starts_with("env_open.vehicle_yaml"), "{}", e.field);
-    let e = bad_open(|o| o.lidar.as_mut().unwrap().fov = -1.0);
+    let e = bad_open(|o| o.lidar.as_mut().unwrap().fov = -1.0); // ok: test
     assert_eq!(e.field, "env_open.lidar.fov");
     let e = expect_err(s.handle(id, 42, &[]));
     assert_eq!(e.field, "env_request.op");
@@ -290,10 +290,10 @@ fn bad_requests_name_the_field() {
 #[test]
 fn maps_from_the_cache_by_hash() {
     let tmp = std::env::temp_dir().join(format!("paddock-sessions-{}", std::process::id()));
-    let cache = MapCache::open(&tmp).unwrap();
-    let mut bundle = paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap();
+    let cache = MapCache::open(&tmp).unwrap(); // ok: test
+    let mut bundle = paddock_wire::local_map(&Circuits::new(), "lakeside").unwrap(); // ok: test
     bundle.name = "custom-name".into();
-    cache.store(&bundle).unwrap();
+    cache.store(&bundle).unwrap(); // ok: test
     let mut s = Sessions::new();
     s.set_map_cache(cache);
     let mut o = open_msg(1);
@@ -303,6 +303,6 @@ fn maps_from_the_cache_by_hash() {
     let _ = std::fs::remove_dir_all(&tmp);
     assert!(reply.header.error.is_none(), "{reply:?}");
     let mut gone = open_msg(1);
-    gone.map.as_mut().unwrap().hash = "cd".repeat(32);
+    gone.map.as_mut().unwrap().hash = "cd".repeat(32); // ok: test
     assert_eq!(s.missing_map(&gone.encode_to_vec()), Some("cd".repeat(32)));
 }

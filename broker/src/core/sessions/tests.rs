@@ -100,7 +100,7 @@ fn replies_route_back_in_order_and_only_from_the_sessions_worker() {
         "nothing waits"
     );
     assert_eq!(
-        s.session(10).unwrap().log.len(),
+        s.session(10).unwrap().log.len(), // ok: test
         1,
         "the step is logged, the render not"
     );
@@ -288,7 +288,7 @@ fn the_replay_worker_dying_too_stalls_the_session_again() {
     s.start_replay(id, b"w2".to_vec());
     let orphans = s.worker_gone(b"w2", secs(12.0));
     assert_eq!(orphans.stalled, vec![id]);
-    assert_eq!(s.session(id).unwrap().held(), 3, "held requests kept");
+    assert_eq!(s.session(id).unwrap().held(), 3, "held requests kept"); // ok: test
     // no third worker within the wait: lost, naming why
     assert!(s.tick(secs(16.9)).is_empty());
     let lost = s.tick(secs(17.0));
@@ -414,7 +414,7 @@ fn idle_sessions_are_listed_oldest_first_and_expire() {
     assert_eq!(s.idle(secs(10.0), secs(4.0)), vec![1, 2]);
     assert_eq!(s.idle(secs(10.0), secs(6.0)), vec![1]);
     assert!(s.idle(secs(100.0), secs(6.0)).iter().all(|&id| id != 3));
-    let (lost, worker) = s.expire(1, "expired".into()).unwrap();
+    let (lost, worker) = s.expire(1, "expired".into()).unwrap(); // ok: test
     assert_eq!(
         (lost.session, worker, lost.requests),
         (1, b"w".to_vec(), vec![])
