@@ -170,7 +170,7 @@ impl Lidar {
         let (gx, gy) = map.world_to_grid(x, y);
         let res = map.resolution();
         let inv_res = 1.0 / res;
-        let boxes: Vec<BoxFrame> = shapes
+        let boxes: Vec<(BoxFrame, BeamRanges)> = shapes
             .iter()
             .filter(|b| {
                 libm::hypot(b.cx - x, b.cy - y) - b.circumradius() <= max_range
@@ -183,7 +183,7 @@ impl Lidar {
                 } else {
                     [0..self.config.num_beams, 0..0]
                 };
-                BoxFrame::new(b, beams)
+                (BoxFrame::new(b), beams)
             })
             .collect();
         let job = ScanJob {
@@ -257,8 +257,8 @@ impl Lidar {
             limits.fill(job.max_range);
             // The boxes first, so that the grid march stops early behind them; each box
             // only on the beams that can meet it.
-            for b in job.boxes {
-                for beams in &b.beams {
+            for (b, ranges) in job.boxes {
+                for beams in ranges {
                     let (lo, hi) = (beams.start.max(start), beams.end.min(start + len));
                     for j in lo..hi {
                         let (bc, bs) = (self.beam_cos[j], self.beam_sin[j]);
@@ -301,7 +301,7 @@ impl Lidar {
     /// within that span and two beyond each end (far more than rounding needs); every beam
     /// from nearer, or when the fan's beams could wrap round. A beam left out would have
     /// missed the box: the ranges are the same bits as testing every beam.
-    fn beams_towards(&self, b: &Obb, x: f64, y: f64, theta: f64) -> [std::ops::Range<usize>; 2] {
+    fn beams_towards(&self, b: &Obb, x: f64, y: f64, theta: f64) -> BeamRanges {
         use std::f64::consts::{PI, TAU};
         let n = self.config.num_beams;
         let fov = self.config.fov;
@@ -378,11 +378,14 @@ struct ScanJob<'a> {
     res: f64,
     inv_res: f64,
     max_range: f64,
-    boxes: &'a [BoxFrame],
+    /// Each box, with the beams that can meet it.
+    boxes: &'a [(BoxFrame, BeamRanges)],
 }
 
-/// A box prepared for many rays: centre, axes and half extents, and the beams that can
-/// meet it.
+/// Beam indices as one or two ranges (a span across the fan's ends is two).
+type BeamRanges = [std::ops::Range<usize>; 2];
+
+/// A box prepared for many rays: centre, axes and half extents.
 struct BoxFrame {
     cx: f64,
     cy: f64,
@@ -390,12 +393,10 @@ struct BoxFrame {
     s: f64,
     hl: f64,
     hw: f64,
-    beams: [std::ops::Range<usize>; 2],
 }
 
 impl BoxFrame {
-    /// `b`, to be tested on the beams with indices in `beams`.
-    fn new(b: &Obb, beams: [std::ops::Range<usize>; 2]) -> Self {
+    fn new(b: &Obb) -> Self {
         let (s, c) = libm::sincos(b.theta);
         Self {
             cx: b.cx,
@@ -404,7 +405,6 @@ impl BoxFrame {
             s,
             hl: b.half_length,
             hw: b.half_width,
-            beams,
         }
     }
 
@@ -430,7 +430,7 @@ pub fn ray_obb(ox: f64, oy: f64, dx: f64, dy: f64, obb: &Obb) -> Option<f64> {
     if !(obb.half_length >= 0.0 && obb.half_width >= 0.0) {
         return None;
     }
-    BoxFrame::new(obb, [0..0, 0..0]).ray(ox, oy, dx, dy)
+    BoxFrame::new(obb).ray(ox, oy, dx, dy)
 }
 
 /// Slab test on the axis-aligned box [-hx, hx] x [-hy, hy].
