@@ -394,11 +394,10 @@ impl FitContext<'_> {
             })
             .count();
         let margin = margin_per_param * evidence_params(kind) as f64;
-        // the candidate (last of `free` when fitted jointly)
+        // the candidate among `free` (both callers put it there)
         let fitted = free
             .iter()
             .find(|e| e.kind == kind)
-            .or(free.last())
             .cloned()
             .unwrap_or_else(|| Fitted::new(kind, kind.start(self.nominal)));
         Ok(Evidence {

@@ -529,23 +529,19 @@ fn not_detected_words(
         .ranges
         .iter()
         .map(|(p, [lo, hi])| {
-            let held: Vec<String> = match kind {
-                EffectKind::Drag | EffectKind::TireSaturation => (0..names.len())
-                    .filter(|q| q != p)
-                    .map(|q| format!("{} {}", names[q], nd.held[q]))
-                    .collect(),
-                EffectKind::FrictionPatch => vec![format!(
-                    "inside x [{:.1}, {:.1}] m, y [{:.1}, {:.1}] m (where the residual pointed)",
+            let with = match kind {
+                EffectKind::Drag | EffectKind::TireSaturation => {
+                    let others: Vec<String> = (0..names.len())
+                        .filter(|q| q != p)
+                        .map(|q| format!("{} {}", names[q], nd.held[q]))
+                        .collect();
+                    format!(" ({} held)", others.join(", "))
+                }
+                EffectKind::FrictionPatch => format!(
+                    " inside x [{:.1}, {:.1}] m, y [{:.1}, {:.1}] m (where the residual pointed)",
                     nd.held[1], nd.held[3], nd.held[2], nd.held[4]
-                )],
-                _ => Vec::new(),
-            };
-            let with = if held.is_empty() {
-                String::new()
-            } else if kind == EffectKind::FrictionPatch {
-                format!(" {}", held.join(", "))
-            } else {
-                format!(" ({} held)", held.join(", "))
+                ),
+                _ => String::new(),
             };
             format!(
                 "{} could be anywhere in [{lo:.4}, {hi:.4}]{with}",
