@@ -38,19 +38,9 @@ fn synth_and_analyse(
     args.extend(["--out", &rec_s]);
     let (ok, _, err) = paddock(&args);
     assert!(ok, "synth {name}: {err}");
-    let out = dir.join("out");
-    let out_s = out.to_str().unwrap().to_string();
-    let mut args = vec!["sysid", "--recording", &rec_s, "--out", &out_s];
-    args.extend(extra);
-    let (ok, stdout, err) = paddock(&args);
-    assert!(ok, "sysid {name}: {err}");
-    assert!(!err.contains("panicked"), "{err}");
+    let (report, stdout) = common::sysid(&[&rec_s], &dir.join("out"), extra);
     assert!(stdout.contains("held-out rmse"), "{stdout}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    let truth: Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("rec.csv.truth.json")).unwrap())
-            .unwrap();
+    let truth = common::read_json(&dir.join("rec.csv.truth.json"));
     (report, truth, dir)
 }
 
@@ -324,23 +314,19 @@ fn mcap_recordings_with_custom_topics() {
     ]);
     assert!(!ok);
     assert!(err.contains("/car/drive") && err.contains("/odom"), "{err}");
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "--recording",
-        rec_s,
-        "--out",
-        out_s,
-        "--drive-topic",
-        "/drive",
-        "--odom-topic",
-        "/odom",
-        "--effects",
-        "steering_offset,drag",
-        "--no-plots",
-    ]);
-    assert!(ok, "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, _) = common::sysid(
+        &[rec_s],
+        &out,
+        &[
+            "--drive-topic",
+            "/drive",
+            "--odom-topic",
+            "/odom",
+            "--effects",
+            "steering_offset,drag",
+            "--no-plots",
+        ],
+    );
     let offset = report["effects"]
         .as_array()
         .unwrap()
@@ -547,24 +533,18 @@ fn real_logs_shape_is_read_not_refused() {
     let messy = format!("\u{feff}{}\n1732000099.0,0.1,2\n", lines.join("\n"));
     std::fs::write(&rec, messy).unwrap();
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, stdout, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &rec_s,
-        "--out",
-        out_s,
-        "--effects",
-        "steering_offset",
-        "--no-plots",
-        "--threads",
-        "2",
-    ]);
-    assert!(ok, "{err}");
-    assert!(!err.contains("panicked"), "{err}");
+    let (report, stdout) = common::sysid(
+        &[&rec_s],
+        &out,
+        &[
+            "--effects",
+            "steering_offset",
+            "--no-plots",
+            "--threads",
+            "2",
+        ],
+    );
     assert!(stdout.contains("steering_offset"), "{stdout}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let warnings = report["recording"]["warnings"].to_string();
     for needle in ["stray", "rows skipped", "fast", "split into 2 runs"] {
         assert!(warnings.contains(needle), "{needle}: {warnings}");
@@ -616,21 +596,16 @@ fn many_short_pose_and_speed_runs_find_a_steering_gain() {
     )
     .unwrap();
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &day_s,
-        "--out",
-        out_s,
-        "--effects",
-        "steering_gain,steering_offset,steering_delay,speed_gain",
-        "--vesc-config",
-        vesc.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, _) = common::sysid(
+        &[&day_s],
+        &out,
+        &[
+            "--effects",
+            "steering_gain,steering_offset,steering_delay,speed_gain",
+            "--vesc-config",
+            vesc.to_str().unwrap(),
+        ],
+    );
     assert_eq!(report["recording"]["runs"].as_array().unwrap().len(), 12);
     assert_eq!(
         report["recording"]["channels_missing"],
@@ -704,20 +679,15 @@ fn steering_backlash_on_a_test_day() {
     ]);
     assert!(ok, "{err}");
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &day_s,
-        "--out",
-        out_s,
-        "--effects",
-        "steering_backlash,steering_gain,steering_lag",
-        "--no-plots",
-    ]);
-    assert!(ok, "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, _) = common::sysid(
+        &[&day_s],
+        &out,
+        &[
+            "--effects",
+            "steering_backlash,steering_gain,steering_lag",
+            "--no-plots",
+        ],
+    );
     let kept: Vec<&Value> = report["effects"]
         .as_array()
         .unwrap()
@@ -761,20 +731,15 @@ fn delay_and_lag_together_are_found_or_reported_ambiguous() {
     ]);
     assert!(ok, "{err}");
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &day_s,
-        "--out",
-        out_s,
-        "--no-plots",
-        "--effects",
-        "steering_delay,steering_lag,measurement_delay,steering_gain",
-    ]);
-    assert!(ok, "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, _) = common::sysid(
+        &[&day_s],
+        &out,
+        &[
+            "--no-plots",
+            "--effects",
+            "steering_delay,steering_lag,measurement_delay,steering_gain",
+        ],
+    );
     let kept = |n: &str| {
         report["effects"]
             .as_array()

@@ -90,21 +90,7 @@ fn day(effect: &str, param: &str, manoeuvres: &str, candidates: &str, seed: u64)
         ],
     );
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &day_s,
-        "--out",
-        out_s,
-        "--effects",
-        candidates,
-        "--no-plots",
-    ]);
-    assert!(ok, "sysid {name}: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, _) = common::sysid(&[&day_s], &out, &["--effects", candidates, "--no-plots"]);
     let hidden = effect.split(':').next().unwrap();
     let kept: Vec<&Value> = report["effects"]
         .as_array()
@@ -274,22 +260,11 @@ fn recordings_with_different_channels_are_scored_in_every_channel() {
         recs.push(d_s);
     }
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, stdout, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &recs[0],
-        "--recording",
-        &recs[1],
-        "--out",
-        out_s,
-        "--effects",
-        "steering_gain",
-        "--no-plots",
-    ]);
-    assert!(ok, "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, stdout) = common::sysid(
+        &[&recs[0], &recs[1]],
+        &out,
+        &["--effects", "steering_gain", "--no-plots"],
+    );
     assert_eq!(report["recording"]["runs"].as_array().unwrap().len(), 8);
     assert_eq!(report["effects"][0]["significant"], true, "{stdout}");
     for c in ["x", "y", "yaw", "vx", "vy", "yaw_rate"] {
@@ -311,20 +286,15 @@ fn every_candidate_not_kept_says_what_it_could_be() {
     let dir = scratch("could-be");
     let day_s = gain_day(&dir, "step,arc,speed-step");
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, stdout, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &day_s,
-        "--out",
-        out_s,
-        "--effects",
-        "steering_gain,drag,tire_saturation,friction_patch,drive_lag",
-        "--no-plots",
-    ]);
-    assert!(ok, "{err}");
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (report, stdout) = common::sysid(
+        &[&day_s],
+        &out,
+        &[
+            "--effects",
+            "steering_gain,drag,tire_saturation,friction_patch,drive_lag",
+            "--no-plots",
+        ],
+    );
     let effects = report["effects"].as_array().unwrap();
     let scanned = |name: &str| -> &[&str] {
         match name {
@@ -383,17 +353,7 @@ fn residual_map_of_a_pose_only_day_is_coloured_with_a_scale() {
     let dir = scratch("map");
     let day_s = gain_day(&dir, "step,arc");
     let out = dir.join("out");
-    let out_s = out.to_str().unwrap();
-    let (ok, _, err) = paddock(&[
-        "sysid",
-        "--recording",
-        &day_s,
-        "--out",
-        out_s,
-        "--effects",
-        "steering_gain",
-    ]);
-    assert!(ok, "{err}");
+    let _ = common::sysid(&[&day_s], &out, &["--effects", "steering_gain"]);
     let png = out.join("residual_by_place.png");
     let (w, _) = image::image_dimensions(&png).unwrap();
     // the two maps, then the colour bar in the last 110 columns
