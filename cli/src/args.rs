@@ -123,6 +123,27 @@ pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
     })
 }
 
+/// An error and its causes on one line, `outer: cause: ...`, each cause left out when the
+/// message before it already says it (many error types put their source's text in their
+/// own message, and the plain chain then read "No such file (os error 2): No such file
+/// (os error 2)").
+pub fn error_line(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    let mut last = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if !last.is_empty() && last.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+        last = text;
+    }
+    out
+}
+
 /// `println!` that returns a closed pipe as an error (`?`) instead of panicking.
 macro_rules! outln {
     () => {{
@@ -148,6 +169,39 @@ pub(crate) use {out, outln};
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_error_line_says_each_cause_once() {
+        /// An error that says its source in its own message and gives it as its source.
+        #[derive(Debug)]
+        struct Read {
+            path: String,
+            source: std::io::Error,
+        }
+        impl std::fmt::Display for Read {
+            fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "cannot read {}: {}", self.path, self.source)
+            }
+        }
+        impl std::error::Error for Read {
+            fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+                Some(&self.source)
+            }
+        }
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = anyhow::Error::new(Read {
+            path: "day".into(),
+            source: io,
+        })
+        .context("loading the recording day");
+        assert_eq!(
+            error_line(&e),
+            "loading the recording day: cannot read day: no such file"
+        );
+        // causes not already said are all kept
+        let e = anyhow::anyhow!("inner").context("middle").context("outer");
+        assert_eq!(error_line(&e), "outer: middle: inner");
+    }
 
     #[test]
     fn ranges_have_one_wording() {

@@ -179,7 +179,7 @@ fn main() {
             // the reader is done (`paddock drivers | head`): end quietly, as Unix tools do
             std::process::exit(0);
         }
-        eprintln!("error: {e:#}");
+        eprintln!("error: {}", args::error_line(&e));
         std::process::exit(1);
     }
 }
