@@ -72,7 +72,7 @@ struct AnalyseArgs {
     /// calibration error.
     #[arg(long)]
     vesc_config: Option<PathBuf>,
-    /// Worker threads of the analysis (default: every core).
+    /// Worker threads of the analysis (default, or 0: one per core).
     #[arg(long, value_parser = args::threads())]
     threads: Option<usize>,
 }
@@ -144,10 +144,8 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
             "paddock sysid needs --recording FILE (or FOLDER, repeatable) and --out DIR (or the `synth` subcommand)"
         );
     };
-    if let Some(n) = a.threads {
-        if n == 0 {
-            anyhow::bail!("--threads 0: give at least 1");
-        }
+    // 0, as for every --threads: one per core (the thread pool's default)
+    if let Some(n) = a.threads.filter(|&n| n > 0) {
         paddock_sysid::set_threads(n)?;
     }
     let topics = McapTopics {

@@ -774,3 +774,21 @@ fn delay_and_lag_together_are_found_or_reported_ambiguous() {
     );
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `--threads 0` means one thread per core, as for every command with `--threads` (it was
+/// refused here with a wording of its own).
+#[test]
+fn threads_zero_is_one_per_core_as_everywhere() {
+    let dir = scratch("threads-zero");
+    let rec = dir.join("rec.csv");
+    let rec_s = rec.to_str().unwrap();
+    let (ok, _, err) = paddock(&["sysid", "synth", "--seconds", "10", "--out", rec_s]);
+    assert!(ok, "{err}");
+    let (report, _) = common::sysid(
+        &[rec_s],
+        &dir.join("out"),
+        &["--effects", "steering_gain", "--no-plots", "--threads", "0"],
+    );
+    assert!(report["effects"].is_array(), "{report}");
+    let _ = std::fs::remove_dir_all(dir);
+}
