@@ -43,10 +43,17 @@ struct Case<'a> {
     wall_rates: Vec<f64>,
 }
 
-fn scan_case<'a>(name: String, map: &'a Map, poses: Vec<Pose>, path: ScanPath) -> Case<'a> {
+fn scan_case<'a>(
+    name: String,
+    map: &'a Map,
+    poses: Vec<Pose>,
+    path: ScanPath,
+    sweep: bool,
+) -> Case<'a> {
     let lidar = Lidar::new(LidarConfig::default())
         .with_path(path)
-        .expect("supported path");
+        .expect("supported path")
+        .with_sweep(sweep);
     let beams = lidar.num_beams();
     let mut out = vec![0.0; beams];
     let mut i = 0;
@@ -139,19 +146,19 @@ fn main() {
         .filter(|d| d.is_dir())
         .map(|d| Circuit::load(&d).expect("Spa loads"));
     let mut cases: Vec<Case> = Vec::new();
-    for &p in &paths {
-        let poses = poses_along(&circuit.track, 97);
-        cases.push(scan_case(
-            format!("scan {} {p}", circuit.name),
-            &circuit.map,
-            poses,
-            p,
-        ));
-    }
-    if let Some(spa) = &spa {
+    for sweep in [false, true] {
+        let how = if sweep { " sweep" } else { "" };
         for &p in &paths {
-            let poses = poses_along(&spa.track, 97);
-            cases.push(scan_case(format!("scan Spa {p}"), &spa.map, poses, p));
+            let poses = poses_along(&circuit.track, 97);
+            let name = format!("scan {} {p}{how}", circuit.name);
+            cases.push(scan_case(name, &circuit.map, poses, p, sweep));
+        }
+        if let Some(spa) = &spa {
+            for &p in &paths {
+                let poses = poses_along(&spa.track, 97);
+                let name = format!("scan Spa {p}{how}");
+                cases.push(scan_case(name, &spa.map, poses, p, sweep));
+            }
         }
     }
     for agents in [1, 2] {

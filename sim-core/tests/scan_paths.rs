@@ -1,5 +1,6 @@
-//! Every code path of the exact LIDAR scan (portable, AVX, AVX-512: those this CPU has)
-//! gives the same bits on the same input, over many random poses on the real race tracks
+//! Every code path of the exact LIDAR scan (portable, AVX, AVX-512: those this CPU has),
+//! each by the march and by the angular sweep over wall faces, gives the same bits on the
+//! same input, over many random poses on the real race tracks
 //! of `shared/maps` and on the shipped maps, with and without other cars in view; along
 //! driven trajectories (consecutive poses a step apart, with resets to far poses); and
 //! from degenerate poses (origins on grid lines and cell corners, beams along the grid
@@ -50,15 +51,10 @@ fn shared_tracks() -> Vec<(String, PathBuf, PathBuf)> {
 /// has, and asserts that each path's ranges equal the portable path's bit for bit.
 /// Returns the number of scans compared.
 fn check_track(name: &str, map: &Map, track: &Track, seed: u64, poses: usize) -> usize {
-    let lidar = Lidar::new(LidarConfig::default());
-    let paths: Vec<Lidar> = ScanPath::ALL
-        .into_iter()
-        .filter(|p| p.supported())
-        .map(|p| lidar.clone().with_path(p).unwrap())
-        .collect();
+    let paths = every_path(LidarConfig::default());
     assert_eq!(paths[0].path(), ScanPath::Portable);
     let mut rng = Rng::new(seed);
-    let beams = lidar.num_beams();
+    let beams = paths[0].num_beams();
     let (mut want, mut got) = (vec![0.0; beams], vec![0.0; beams]);
     let mut compared = 0;
     for _ in 0..poses {
@@ -89,8 +85,10 @@ fn check_track(name: &str, map: &Map, track: &Track, seed: u64, poses: usize) ->
                 assert_eq!(
                     a.to_bits(),
                     b.to_bits(),
-                    "{name}: path {} beam {i} from {pose:?} with {} cars: {a} vs portable {b}",
+                    "{name}: path {} (sweep {}) beam {i} from {pose:?} with {} cars: {a} vs \
+                     portable {b}",
                     fast.path(),
+                    fast.sweeps(),
                     cars.len()
                 );
             }
@@ -113,8 +111,8 @@ fn every_scan_path_gives_the_same_bits_on_real_tracks() {
         let track = Track::load(center, None).unwrap_or_else(|e| panic!("{name}: {e}"));
         compared += check_track(name, &map, &track, 1000 + k as u64, 150);
     }
-    let wider = ScanPath::ALL.iter().filter(|p| p.supported()).count() - 1;
-    assert_eq!(compared, wider * tracks.len() * 150);
+    let others = 2 * ScanPath::ALL.iter().filter(|p| p.supported()).count() - 1;
+    assert_eq!(compared, others * tracks.len() * 150);
 }
 
 #[test]
@@ -139,21 +137,21 @@ fn assert_paths_agree(name: &str, lidars: &[Lidar], map: &Map, pose: Pose, cars:
             assert_eq!(
                 a.to_bits(),
                 b.to_bits(),
-                "{name}: path {} beam {i} from {pose:?}: {a} vs portable {b}",
-                fast.path()
+                "{name}: path {} (sweep {}) beam {i} from {pose:?}: {a} vs portable {b}",
+                fast.path(),
+                fast.sweeps()
             );
         }
     }
 }
 
-/// `config` on every path this CPU has, portable first.
+/// `config` on every path this CPU has, by the march (portable first) and by the sweep.
 fn every_path(config: LidarConfig) -> Vec<Lidar> {
     let lidar = Lidar::new(config);
-    ScanPath::ALL
-        .into_iter()
-        .filter(|p| p.supported())
-        .map(|p| lidar.clone().with_path(p).unwrap())
-        .collect()
+    let paths = ScanPath::ALL.into_iter().filter(|p| p.supported());
+    let march = paths.clone().map(|p| lidar.clone().with_path(p).unwrap());
+    let sweep = paths.map(|p| lidar.clone().with_path(p).unwrap().with_sweep(true));
+    march.chain(sweep).collect()
 }
 
 /// A car driven along the centreline: poses 0.01 s apart at 4-12 m/s with a weaving

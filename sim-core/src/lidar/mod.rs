@@ -17,6 +17,7 @@
 mod march;
 mod path;
 mod reference;
+mod sweep;
 
 pub use path::{ScanPath, ScanPathError, cpu_features};
 
@@ -29,6 +30,9 @@ use crate::rng::Rng;
 thread_local! {
     /// The ray batch of this thread's scans (see `Lidar::scan_chunks`).
     static SCAN_BATCH: std::cell::Cell<Option<Box<march::Batch>>> =
+        const { std::cell::Cell::new(None) };
+    /// The per-beam arrays of this thread's sweeps (see `Lidar::scan_sweep`).
+    static SCAN_SWEEP: std::cell::Cell<Option<Box<sweep::Sweep>>> =
         const { std::cell::Cell::new(None) };
 }
 
@@ -73,6 +77,8 @@ pub struct Lidar {
     /// Whether each box is tested only on the beams that can meet it (tests turn it off
     /// to compare with testing every beam).
     cull_boxes: bool,
+    /// Whether scans take the angular sweep over wall faces (same bits as the march).
+    sweep: bool,
 }
 
 impl Lidar {
@@ -97,6 +103,7 @@ impl Lidar {
             reference,
             path: None,
             cull_boxes: true,
+            sweep: false,
         }
     }
 
@@ -112,6 +119,19 @@ impl Lidar {
         }
         self.path = Some(path);
         Ok(self)
+    }
+
+    /// This LIDAR with its scans taken by the angular sweep over the map's wall faces
+    /// (`on`) or by the march alone: the same bits either way (tested); only the speed
+    /// differs.
+    pub fn with_sweep(mut self, on: bool) -> Self {
+        self.sweep = on;
+        self
+    }
+
+    /// Whether scans take the angular sweep (see [`Lidar::with_sweep`]).
+    pub fn sweeps(&self) -> bool {
+        self.sweep
     }
 
     /// The code path [`Lidar::scan`] takes: the one forced by [`Lidar::with_path`], else
@@ -242,6 +262,9 @@ impl Lidar {
     /// `level`, see [`ScanPath`]), metres.
     #[inline(always)]
     fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
+        if self.sweep && self.scan_sweep::<AVX>(map, job, out, level) {
+            return;
+        }
         let n = out.len();
         // The ray batch (tens of KiB) is rewritten for every chunk, so one per thread
         // serves every scan instead of a fresh allocation each time.
@@ -286,6 +309,60 @@ impl Lidar {
             start += len;
         }
         SCAN_BATCH.set(Some(batch));
+    }
+
+    /// The scan by the angular sweep (see `sweep`), the beams it leaves to the march
+    /// marched; false (nothing written) when the sweep does not apply.
+    #[inline(always)]
+    fn scan_sweep<const AVX: bool>(
+        &self,
+        map: &Map,
+        job: &ScanJob,
+        out: &mut [f64],
+        level: u8,
+    ) -> bool {
+        let n = out.len();
+        let mut sw = SCAN_SWEEP.take().unwrap_or_default();
+        sw.resize(n);
+        sw.limit.fill(job.max_range);
+        for (b, ranges) in job.boxes {
+            for beams in ranges {
+                for j in beams.clone() {
+                    let (bc, bs) = (self.beam_cos[j], self.beam_sin[j]);
+                    let (dx, dy) = (job.wc * bc - job.ws * bs, job.ws * bc + job.wc * bs);
+                    if let Some(t) = b.ray(job.x, job.y, dx, dy) {
+                        sw.limit[j] = sw.limit[j].min(t);
+                    }
+                }
+            }
+        }
+        sw.prepare(&self.beam_cos, &self.beam_sin, job.gc, job.gs, job.inv_res);
+        let fov = self.config.fov;
+        let inc = if n > 1 { fov / (n - 1) as f64 } else { 0.0 };
+        let fan = sweep::Fan::new(job.gc, job.gs, fov, inc);
+        if !sw.run::<AVX>(map, job.gx, job.gy, job.res, &fan, out) {
+            SCAN_SWEEP.set(Some(sw));
+            return false;
+        }
+        if !sw.marched.is_empty() {
+            let mut batch = SCAN_BATCH.take().unwrap_or_else(march::Batch::new);
+            batch.simd = level;
+            let mut cells = [0.0; march::CHUNK];
+            for chunk in sw.marched.chunks(march::CHUNK) {
+                for (j, &i) in chunk.iter().enumerate() {
+                    let i = i as usize;
+                    (batch.dx[j], batch.dy[j], batch.tmax[j]) = (sw.dx[i], sw.dy[i], sw.tmax[i]);
+                }
+                batch.cast::<AVX>(map, job.gx, job.gy, chunk.len(), &mut cells);
+                for (j, &i) in chunk.iter().enumerate() {
+                    let i = i as usize;
+                    out[i] = sweep::metres(cells[j], job.res, sw.limit[i]);
+                }
+            }
+            SCAN_BATCH.set(Some(batch));
+        }
+        SCAN_SWEEP.set(Some(sw));
+        true
     }
 
     /// This LIDAR testing every box on every beam (for tests of the culling).

@@ -454,3 +454,125 @@ fn boxes_tested_on_their_beams_only_give_the_same_bits() {
     }
     assert!(on_boxes > 50_000, "only {on_boxes} beams met a box");
 }
+
+/// The angular sweep gives the march's bits, boxes included, on random grids (dense and
+/// sparse, turned or not in the world frame, origins on and off the map), on a real track from random and from degenerate
+/// poses (origins on cell corners and centres with beams along the diagonals, where
+/// crossings fall on cell corners and must be left to the march), on every SIMD path this
+/// CPU has, and on narrow and nearly full fans; and it does sweep most scans.
+#[test]
+fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
+    let counts = || {
+        let sw = SCAN_SWEEP.take().unwrap_or_default();
+        let c = (sw.swept, sw.handed);
+        SCAN_SWEEP.set(Some(sw));
+        c
+    };
+    let (swept0, handed0) = counts();
+    let configs = [
+        LidarConfig::default(),
+        LidarConfig {
+            num_beams: 64,
+            fov: 1.0,
+            ..LidarConfig::default()
+        },
+        LidarConfig {
+            num_beams: 721,
+            fov: 5.9,
+            max_range: 10.0,
+            ..LidarConfig::default()
+        },
+        LidarConfig {
+            num_beams: 9,
+            fov: std::f64::consts::PI,
+            ..LidarConfig::default()
+        },
+    ];
+    let check = |lidar: &Lidar, map: &Map, pose: Pose, boxes: &[Obb], what: &str| {
+        let n = lidar.num_beams();
+        let (mut want, mut got) = (vec![0.0; n], vec![0.0; n]);
+        lidar.scan_with(map, pose, boxes, &mut want, ScanPath::Portable);
+        let swept = lidar.clone().with_sweep(true);
+        for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
+            swept.scan_with(map, pose, boxes, &mut got, path);
+            for (i, (a, b)) in got.iter().zip(&want).enumerate() {
+                assert_eq!(
+                    a.to_bits(),
+                    b.to_bits(),
+                    "{what}: {path} beam {i} of {n} from {pose:?}: sweep {a} vs march {b}"
+                );
+            }
+        }
+    };
+    let mut rng = Rng::new(2024);
+    for config in &configs {
+        let lidar = Lidar::new(config.clone());
+        for k in 0..8 {
+            let (w, h) = (40 + rng.below(200) as usize, 40 + rng.below(200) as usize);
+            let map = random_map(&mut rng, w, h);
+            // Half of them with the grid turned in the world frame.
+            let map = if k % 2 == 0 {
+                map
+            } else {
+                let yaw = rng.uniform_range(-3.0, 3.0);
+                let grid = map.occupancy().to_vec();
+                Map::from_grid("turned", w, h, 0.05, Pose::new(-1.0, 2.0, yaw), grid).unwrap()
+            };
+            for _ in 0..6 {
+                let o = map.origin();
+                let pose = Pose::new(
+                    o.x + rng.uniform_range(-0.5, w as f64 * 0.05 + 0.5),
+                    o.y + rng.uniform_range(-0.5, h as f64 * 0.05 + 0.5),
+                    rng.uniform_range(-7.0, 7.0),
+                );
+                let boxes: Vec<Obb> = (0..rng.below(3))
+                    .map(|_| Obb {
+                        cx: pose.x + rng.uniform_range(-2.0, 2.0),
+                        cy: pose.y + rng.uniform_range(-2.0, 2.0),
+                        theta: rng.uniform_range(-3.0, 3.0),
+                        half_length: 0.25,
+                        half_width: 0.15,
+                    })
+                    .collect();
+                check(&lidar, &map, pose, &boxes, "random grid");
+            }
+        }
+    }
+    let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
+    let (map, track) = (&circuit.map, &circuit.track);
+    let (w, h) = (map.width() as f64, map.height() as f64);
+    for config in &configs {
+        let lidar = Lidar::new(config.clone());
+        for k in 0..120 {
+            let pose = if k % 2 == 0 {
+                let (p, _, _) = track.at(rng.uniform_range(0.0, track.length()));
+                Pose::new(
+                    p.x + rng.uniform_range(-1.0, 1.0),
+                    p.y + rng.uniform_range(-1.0, 1.0),
+                    rng.uniform_range(-4.0, 4.0),
+                )
+            } else {
+                // A cell centre (or corner) near the track, heading a multiple of pi/8.
+                let (p, _, _) = track.at(rng.uniform_range(0.0, track.length()));
+                let (gx, gy) = map.world_to_grid(p.x, p.y);
+                let f = if k % 4 == 1 { 0.5 } else { 0.0 };
+                let (gx, gy) = (
+                    (gx.floor() + f).clamp(0.0, w - 1.0),
+                    (gy.floor() + f).clamp(0.0, h - 1.0),
+                );
+                let (x, y) = map.grid_to_world(gx, gy);
+                Pose::new(x, y, rng.below(16) as f64 * std::f64::consts::FRAC_PI_8)
+            };
+            check(&lidar, map, pose, &[], "default circuit");
+        }
+    }
+    let (swept, handed) = counts();
+    let (swept, handed) = (swept - swept0, handed - handed0);
+    let per_path = ScanPath::ALL.iter().filter(|p| p.supported()).count() as u64;
+    assert!(
+        swept > per_path * 4 * 100,
+        "only {swept} scans swept of {}",
+        per_path * 4 * 168
+    );
+    assert!(handed > 0, "no beam was left to the march");
+}

@@ -1,0 +1,885 @@
+//! The exact scan as an angular sweep over the wall faces in view, with the march as the
+//! referee of near-ties.
+//!
+//! Instead of following each ray cell by cell, the sweep takes the map's wall faces
+//! ([`WallFaces`]: straight runs of cell sides between a free and an occupied cell, by
+//! 32 x 32-cell block and by the side they face) block by block, nearest blocks first,
+//! and crosses each run with the beams that can see its block: a beam going +x meets a
+//! run on the line x = X at `t = (X - gx) / dx` (the march's own expression, so the same
+//! bits) if `gy + t dy` lies on the run. A beam's range is the least such t. Blocks wholly
+//! beyond every beam's current range are skipped (per block of 16 beams the largest
+//! current range is kept), and the sweep ends at the first ring of blocks beyond all of
+//! them.
+//!
+//! The march decides which cell a ray enters at a cell corner by its own rounding; the
+//! sweep cannot see those decisions. So a beam whose crossing of a run lies within
+//! [`EPS`] cells of one of the run's ends, where the geometry changes, is flagged and
+//! traced again by the march, whose result it takes. Away from run ends a crossing is
+//! decided the same way by both (the cells on either side of the crossing point are the
+//! same whichever way a rounding goes), so every beam gets the march's bits. The whole
+//! scan is left to the march when its origin is off the map, in an occupied cell, or
+//! within [`EPS`] of a grid line, and for fans that are not a plain arc of beams.
+
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+
+use crate::map::Map;
+use crate::map::faces::{BLOCK, MINUS_X, MINUS_Y, PLUS_X, PLUS_Y, WallFaces};
+
+/// Cells: a crossing this near a run's end is left to the march (the rounding of either
+/// side's expressions is below 1e-12 cells on maps up to 2^24 cells across).
+const EPS: f64 = 1e-9;
+/// Beams per block of the culling maxima.
+const GROUP: usize = 16;
+/// A run's beams are crossed in whole aligned lanes of this many (the extra beams cannot
+/// cross it: testing them changes nothing).
+const LANES: usize = 4;
+/// Radians: the error bound of [`atan2_fast`] (1e-6) with room to spare.
+const ANGLE_SLACK: f64 = 1e-5;
+
+/// The sweep's per-beam arrays, kept per thread and reused.
+#[derive(Default)]
+pub(super) struct Sweep {
+    /// Unit direction in the grid frame and the range limit (cells) of each beam (see
+    /// [`Sweep::prepare`]).
+    pub dx: Vec<f64>,
+    pub dy: Vec<f64>,
+    pub tmax: Vec<f64>,
+    inv_dx: Vec<f64>,
+    inv_dy: Vec<f64>,
+    /// The least crossing so far (starts beyond `tmax`).
+    best: Vec<f64>,
+    /// Non-zero: a crossing near a run end; the march decides this beam.
+    flag: Vec<f64>,
+    /// Per group of [`GROUP`] beams, the largest `best`, and a bit set of the groups a
+    /// crossing test may have lowered since.
+    group_max: Vec<f64>,
+    dirty: Vec<u64>,
+    /// The range limit of each beam in metres (the caller's scratch).
+    pub limit: Vec<f64>,
+    /// Per run of the block side being crossed: its first and last beam.
+    first: Vec<f64>,
+    last: Vec<f64>,
+    /// The beams [`Sweep::run`] leaves to the march.
+    pub marched: Vec<u32>,
+    /// Scans swept and beams left to the march since this thread's first (for tests).
+    pub swept: u64,
+    pub handed: u64,
+}
+
+/// Where the scan's beams point: beam i at grid-frame angle `heading - fov/2 + i inc`.
+pub(super) struct Fan {
+    pub fov: f64,
+    pub inc: f64,
+    /// cos and sin of the heading, `fov / 2` and `1 / inc`.
+    pub cos: f64,
+    pub sin: f64,
+    pub half_fov: f64,
+    pub inv_inc: f64,
+}
+
+impl Fan {
+    /// The fan of a scan whose heading in the grid frame has cosine `cos` and sine `sin`.
+    pub(super) fn new(cos: f64, sin: f64, fov: f64, inc: f64) -> Fan {
+        Fan {
+            fov,
+            inc,
+            cos,
+            sin,
+            half_fov: 0.5 * fov,
+            inv_inc: 1.0 / inc,
+        }
+    }
+}
+
+impl Sweep {
+    /// Sizes the arrays for `n` beams (contents unspecified until filled). The arrays the
+    /// crossings read are padded to whole lanes of four with beams that meet nothing (an
+    /// inverse of 0 gives t = 0, never a crossing).
+    pub(super) fn resize(&mut self, n: usize) {
+        if self.tmax.len() == n {
+            return;
+        }
+        for v in [&mut self.tmax, &mut self.limit] {
+            v.resize(n, 0.0);
+        }
+        // One lane more: the crossings of a short run take two lanes whatever its span.
+        let padded = n.next_multiple_of(LANES) + LANES;
+        for v in [
+            &mut self.dx,
+            &mut self.dy,
+            &mut self.inv_dx,
+            &mut self.inv_dy,
+            &mut self.best,
+            &mut self.flag,
+        ] {
+            v.clear();
+            v.resize(padded, 0.0);
+        }
+        let groups = n.div_ceil(GROUP);
+        self.group_max.resize(groups, 0.0);
+        self.dirty.clear();
+        self.dirty.resize(groups.div_ceil(64), 0);
+    }
+
+    /// The beams' directions in the grid frame (the beam's `cos` and `sin` relative to the
+    /// heading turned by the heading's `gc`, `gs`, as the march computes them) and their
+    /// limits in cells from `limit` (metres, filled by the caller) and `inv_res`.
+    #[inline(always)]
+    pub(super) fn prepare(
+        &mut self,
+        beam_cos: &[f64],
+        beam_sin: &[f64],
+        gc: f64,
+        gs: f64,
+        inv_res: f64,
+    ) {
+        let n = self.tmax.len();
+        let (beam_cos, beam_sin, limit) = (&beam_cos[..n], &beam_sin[..n], &self.limit[..n]);
+        let (dxs, dys) = (&mut self.dx[..n], &mut self.dy[..n]);
+        let (inv_dx, inv_dy) = (&mut self.inv_dx[..n], &mut self.inv_dy[..n]);
+        let (tmax, best, flag) = (
+            &mut self.tmax[..n],
+            &mut self.best[..n],
+            &mut self.flag[..n],
+        );
+        for j in 0..n {
+            let (bc, bs) = (beam_cos[j], beam_sin[j]);
+            // As the march prepares them: -0.0 would give an inverse of -infinity.
+            let dx = gc * bc - gs * bs;
+            let dy = gs * bc + gc * bs;
+            let dx = if dx == 0.0 { 0.0 } else { dx };
+            let dy = if dy == 0.0 { 0.0 } else { dy };
+            dxs[j] = dx;
+            dys[j] = dy;
+            inv_dx[j] = 1.0 / dx;
+            inv_dy[j] = 1.0 / dy;
+            let t = limit[j] * inv_res;
+            tmax[j] = t;
+            // Any start beyond tmax will do (a crossing beyond it is no hit).
+            best[j] = t + 1.0;
+            flag[j] = 0.0;
+        }
+    }
+
+    /// Sweeps the faces from the grid point (gx, gy) for the beams `dx`, `dy`, `tmax`
+    /// (see [`Sweep::prepare`]; `fan` says where they point). Returns false when the
+    /// sweep does not apply (see the module doc) and the caller must march every beam;
+    /// else `out[i]` is the range in metres (cells times `res`, capped at the beam's
+    /// limit) for every beam not listed in `marched`: those the caller marches.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(super) fn run<const AVX: bool>(
+        &mut self,
+        map: &Map,
+        gx: f64,
+        gy: f64,
+        res: f64,
+        fan: &Fan,
+        out: &mut [f64],
+    ) -> bool {
+        let n = self.tmax.len();
+        self.marched.clear();
+        let Some(faces) = map.wall_faces() else {
+            return false;
+        };
+        let (w, h) = (map.width() as f64, map.height() as f64);
+        let near_line = |g: f64| {
+            let f = g - libm::floor(g);
+            !(f > EPS && f < 1.0 - EPS)
+        };
+        if n < 2
+            || !(fan.fov > 0.0 && fan.fov < 1.9 * PI && fan.inc > 0.0)
+            || !(gx >= 0.0 && gy >= 0.0 && gx < w && gy < h)
+            || near_line(gx)
+            || near_line(gy)
+            || map.cell_occupied(gx as i64, gy as i64)
+            || !self.tmax.iter().all(|t| t.is_finite())
+        {
+            return false;
+        }
+        for (g, m) in self.group_max.iter_mut().enumerate() {
+            *m = self.best[g * GROUP..((g + 1) * GROUP).min(n)]
+                .iter()
+                .fold(0.0, |a, &b| if b > a { b } else { a });
+        }
+        self.sweep::<AVX>(faces, gx, gy, fan);
+        let (best, tmax, limit) = (&self.best[..n], &self.tmax[..n], &self.limit[..n]);
+        for i in 0..n {
+            out[i] = metres(
+                if best[i] <= tmax[i] {
+                    best[i]
+                } else {
+                    f64::INFINITY
+                },
+                res,
+                limit[i],
+            );
+        }
+        if self.flag[..n].iter().any(|&f| f != 0.0) {
+            let flagged = (0..n as u32).filter(|&i| self.flag[i as usize] != 0.0);
+            self.marched.extend(flagged);
+        }
+        self.swept += 1;
+        self.handed += self.marched.len() as u64;
+        true
+    }
+
+    /// The blocks ring by ring from the origin's block outwards.
+    #[inline(always)]
+    fn sweep<const AVX: bool>(&mut self, faces: &WallFaces, gx: f64, gy: f64, fan: &Fan) {
+        let b = BLOCK as isize;
+        let (ox, oy) = (gx as isize / b, gy as isize / b);
+        let (bw, bh) = (faces.blocks_x as isize, faces.blocks_y as isize);
+        let rings = ox.max(bw - 1 - ox).max(oy).max(bh - 1 - oy);
+        let mut reach = self.reach();
+        for k in 0..=rings {
+            // Ring k lies at least k - 1 blocks away (with a margin for rounding).
+            if (k - 1) as f64 * BLOCK as f64 * (1.0 - 1e-9) - EPS > reach {
+                break;
+            }
+            if k == 0 {
+                self.visit::<AVX>(faces, ox, oy, gx, gy, fan, reach);
+            } else {
+                for bx in ox - k..=ox + k {
+                    self.visit::<AVX>(faces, bx, oy - k, gx, gy, fan, reach);
+                    self.visit::<AVX>(faces, bx, oy + k, gx, gy, fan, reach);
+                }
+                for by in oy - k + 1..oy + k {
+                    self.visit::<AVX>(faces, ox - k, by, gx, gy, fan, reach);
+                    self.visit::<AVX>(faces, ox + k, by, gx, gy, fan, reach);
+                }
+            }
+            reach = self.reach();
+        }
+    }
+
+    /// [`Sweep::block`] on block (bx, by) if it is on the map.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn visit<const AVX: bool>(
+        &mut self,
+        faces: &WallFaces,
+        bx: isize,
+        by: isize,
+        gx: f64,
+        gy: f64,
+        fan: &Fan,
+        reach: f64,
+    ) {
+        if bx >= 0 && by >= 0 && (bx as usize) < faces.blocks_x && (by as usize) < faces.blocks_y {
+            self.block::<AVX>(faces, bx as usize, by as usize, gx, gy, fan, reach);
+        }
+    }
+
+    /// The largest current range of any beam.
+    fn reach(&self) -> f64 {
+        self.group_max
+            .iter()
+            .fold(0.0, |a, &b| if b > a { b } else { a })
+    }
+
+    /// One block: culled by distance, then its runs crossed with the beams that can see
+    /// it.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn block<const AVX: bool>(
+        &mut self,
+        faces: &WallFaces,
+        bx: usize,
+        by: usize,
+        gx: f64,
+        gy: f64,
+        fan: &Fan,
+        reach: f64,
+    ) {
+        if faces.block_empty(bx, by) {
+            return;
+        }
+        let (x0, y0) = ((bx * BLOCK) as f64, (by * BLOCK) as f64);
+        let (x1, y1) = (x0 + BLOCK as f64, y0 + BLOCK as f64);
+        let ex = (x0 - gx).max(gx - x1).max(0.0);
+        let ey = (y0 - gy).max(gy - y1).max(0.0);
+        let dmin = libm::sqrt(ex * ex + ey * ey) * (1.0 - 1e-9) - EPS;
+        if dmin > reach {
+            return;
+        }
+        let n = self.tmax.len();
+        // From within a cell of the block (or inside it) every beam may see it.
+        let ranges = if ex < 1.0 && ey < 1.0 {
+            [0..n, 0..0]
+        } else {
+            beams_seeing::<AVX>(fan, n, gx, gy, [x0, y0, x1, y1])
+        };
+        // The largest range of the beams that can see the block.
+        let mut far = 0.0f64;
+        for beams in ranges {
+            if beams.is_empty() {
+                continue;
+            }
+            let (g0, g1) = (beams.start / GROUP, (beams.end - 1) / GROUP);
+            far = self.group_max[g0..=g1]
+                .iter()
+                .fold(far, |a, &b| if b > a { b } else { a });
+        }
+        if dmin > far {
+            return;
+        }
+        if x1 > gx {
+            self.cross::<true, AVX>(faces, faces.runs(bx, by, PLUS_X), gx, gy, fan, far);
+        }
+        if x0 < gx {
+            self.cross::<true, AVX>(faces, faces.runs(bx, by, MINUS_X), gx, gy, fan, far);
+        }
+        if y1 > gy {
+            self.cross::<false, AVX>(faces, faces.runs(bx, by, PLUS_Y), gy, gx, fan, far);
+        }
+        if y0 < gy {
+            self.cross::<false, AVX>(faces, faces.runs(bx, by, MINUS_Y), gy, gx, fan, far);
+        }
+        for w in 0..self.dirty.len() {
+            let mut bits = std::mem::take(&mut self.dirty[w]);
+            while bits != 0 {
+                let g = 64 * w + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                self.group_max[g] = self.best[g * GROUP..((g + 1) * GROUP).min(n)]
+                    .iter()
+                    .fold(0.0, |a, &b| if b > a { b } else { a });
+            }
+        }
+    }
+
+    /// Crosses the runs `runs` (on lines x = const if `VERTICAL`, else y = const) with
+    /// the beams that can see each; `g_line` is the origin's coordinate across the lines,
+    /// `g_along` along them. Runs farther across than `far` (the largest range of the
+    /// beams that see the block) are passed over. Marks the groups of the beams tested.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn cross<const VERTICAL: bool, const AVX: bool>(
+        &mut self,
+        faces: &WallFaces,
+        runs: std::ops::Range<usize>,
+        g_line: f64,
+        g_along: f64,
+        fan: &Fan,
+        far: f64,
+    ) {
+        let m = runs.len();
+        if m == 0 {
+            return;
+        }
+        let n = self.tmax.len();
+        // Each run's beams: between its two ends' directions, with slack.
+        self.first.resize(m + LANES - 1, 0.0);
+        self.last.resize(m + LANES - 1, 0.0);
+        // The runs, and three more (padding or other runs) to read four at a time.
+        let more = runs.start..runs.end + LANES - 1;
+        let (line, los, his) = (
+            &faces.line[more.clone()],
+            &faces.lo[more.clone()],
+            &faces.hi[more],
+        );
+        let (first, last) = (&mut self.first[..], &mut self.last[..]);
+        let (c, s) = (fan.cos, fan.sin);
+        let slack = ANGLE_SLACK * fan.inv_inc;
+        let wrap = PI * fan.inv_inc;
+        let top = (n - 1) as f64;
+        let mut j = 0;
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            j = m;
+            // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
+            unsafe {
+                beams_of_runs_avx::<VERTICAL>(
+                    line, los, his, g_line, g_along, fan, far, top, first, last,
+                )
+            };
+        }
+        while j < m {
+            let across = f64::from(line[j]) - g_line;
+            let a0 = f64::from(los[j]) - g_along;
+            let a1 = f64::from(his[j]) - g_along;
+            let ((x0, y0), (x1, y1)) = if VERTICAL {
+                ((across, a0), (across, a1))
+            } else {
+                ((a0, across), (a1, across))
+            };
+            let i0 = (atan2_fast(y0 * c - x0 * s, x0 * c + y0 * s) + fan.half_fov) * fan.inv_inc;
+            let i1 = (atan2_fast(y1 * c - x1 * s, x1 * c + y1 * s) + fan.half_fov) * fan.inv_inc;
+            let (a, b) = if i0 < i1 { (i0, i1) } else { (i1, i0) };
+            // A run across the direction behind the car: every beam (rare, and safe).
+            let whole = b - a > wrap;
+            let a = if whole {
+                0.0
+            } else {
+                (a - slack).ceil().max(0.0)
+            };
+            let b = if whole {
+                top
+            } else {
+                (b + slack).floor().min(top)
+            };
+            // Farther than any beam's range (a beam's t is at least the distance across):
+            // no beams.
+            let b = if across.abs() * (1.0 - 1e-9) - EPS > far {
+                -1.0
+            } else {
+                b
+            };
+            first[j] = a;
+            last[j] = b;
+            j += 1;
+        }
+        let (inv, along) = if VERTICAL {
+            (&self.inv_dx[..], &self.dy[..])
+        } else {
+            (&self.inv_dy[..], &self.dx[..])
+        };
+        let best = &mut self.best[..];
+        let flag = &mut self.flag[..];
+        let dirty = &mut self.dirty[..];
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            let (first, last) = (&first[..m], &last[..m]);
+            // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
+            unsafe {
+                cross_runs_avx(
+                    line, los, his, first, last, g_line, g_along, inv, along, best, flag, dirty,
+                )
+            };
+            return;
+        }
+        for j in 0..m {
+            if first[j] > last[j] {
+                continue;
+            }
+            let (b0, b1) = (first[j] as usize, last[j] as usize);
+            for g in b0 / GROUP..=b1 / GROUP {
+                dirty[g / 64] |= 1 << (g % 64);
+            }
+            let run = Run::new(line[j], los[j], his[j], g_line, g_along);
+            let (from, to) = (b0 & !(LANES - 1), (b1 + 1).next_multiple_of(LANES));
+            run.cross(inv, along, best, flag, from, to);
+        }
+    }
+}
+
+/// [`Sweep::cross`]'s first and last beam of the runs, four at a time (each run's two
+/// ends' directions by [`atan2_fast`]'s operations): of all of them if the arrays' length
+/// is a multiple of four, else of all but the last `len % 4`, which only pad.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[allow(clippy::too_many_arguments)]
+#[inline]
+unsafe fn beams_of_runs_avx<const VERTICAL: bool>(
+    line: &[f32],
+    los: &[f32],
+    his: &[f32],
+    g_line: f64,
+    g_along: f64,
+    fan: &Fan,
+    far: f64,
+    top: f64,
+    first: &mut [f64],
+    last: &mut [f64],
+) {
+    use std::arch::x86_64::*;
+    let m = line
+        .len()
+        .min(los.len())
+        .min(his.len())
+        .min(first.len())
+        .min(last.len());
+    let set = _mm256_set1_pd;
+    let (c, s) = (set(fan.cos), set(fan.sin));
+    let sign = set(-0.0);
+    // SAFETY: the CPU has AVX (this function's contract).
+    let atan2 = |y, x| unsafe { atan2_avx(y, x) };
+    let index = |vx: __m256d, vy: __m256d| -> __m256d {
+        let u = _mm256_add_pd(_mm256_mul_pd(vx, c), _mm256_mul_pd(vy, s));
+        let v = _mm256_sub_pd(_mm256_mul_pd(vy, c), _mm256_mul_pd(vx, s));
+        _mm256_mul_pd(
+            _mm256_add_pd(atan2(v, u), set(fan.half_fov)),
+            set(fan.inv_inc),
+        )
+    };
+    let slack = set(ANGLE_SLACK * fan.inv_inc);
+    let wrap = set(PI * fan.inv_inc);
+    let cull = set(far);
+    let mut j = 0;
+    while j + LANES <= m {
+        // SAFETY: j + 4 <= m, within every array.
+        let load = |a: &[f32]| unsafe { _mm256_cvtps_pd(_mm_loadu_ps(a.as_ptr().add(j))) };
+        let across = _mm256_sub_pd(load(line), set(g_line));
+        let a0 = _mm256_sub_pd(load(los), set(g_along));
+        let a1 = _mm256_sub_pd(load(his), set(g_along));
+        let (i0, i1) = if VERTICAL {
+            (index(across, a0), index(across, a1))
+        } else {
+            (index(a0, across), index(a1, across))
+        };
+        let (a, b) = (_mm256_min_pd(i0, i1), _mm256_max_pd(i0, i1));
+        let whole = _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_sub_pd(b, a), wrap);
+        let a = _mm256_max_pd(_mm256_ceil_pd(_mm256_sub_pd(a, slack)), set(0.0));
+        let b = _mm256_min_pd(_mm256_floor_pd(_mm256_add_pd(b, slack)), set(top));
+        let a = _mm256_blendv_pd(a, set(0.0), whole);
+        let b = _mm256_blendv_pd(b, set(top), whole);
+        let dist = _mm256_sub_pd(
+            _mm256_mul_pd(_mm256_andnot_pd(sign, across), set(1.0 - 1e-9)),
+            set(EPS),
+        );
+        let b = _mm256_blendv_pd(b, set(-1.0), _mm256_cmp_pd::<_CMP_GT_OQ>(dist, cull));
+        // SAFETY: as above.
+        unsafe {
+            _mm256_storeu_pd(first.as_mut_ptr().add(j), a);
+            _mm256_storeu_pd(last.as_mut_ptr().add(j), b);
+        }
+        j += LANES;
+    }
+}
+
+/// [`atan2_fast`] on four lanes (the same operations, but y = -0.0 gives +pi where
+/// [`atan2_fast`] gives -pi on the negative x axis: both bound the same beams).
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+unsafe fn atan2_avx(
+    y: std::arch::x86_64::__m256d,
+    x: std::arch::x86_64::__m256d,
+) -> std::arch::x86_64::__m256d {
+    use std::arch::x86_64::*;
+    let set = _mm256_set1_pd;
+    let sign = set(-0.0);
+    let (ax, ay) = (_mm256_andnot_pd(sign, x), _mm256_andnot_pd(sign, y));
+    let swap = _mm256_cmp_pd::<_CMP_GT_OQ>(ay, ax);
+    let num = _mm256_blendv_pd(ay, ax, swap);
+    let den = _mm256_blendv_pd(ax, ay, swap);
+    let red = _mm256_cmp_pd::<_CMP_GT_OQ>(num, _mm256_mul_pd(set(0.414_213_562_373_095), den));
+    let z = _mm256_div_pd(
+        _mm256_blendv_pd(num, _mm256_sub_pd(num, den), red),
+        _mm256_blendv_pd(den, _mm256_add_pd(num, den), red),
+    );
+    let z2 = _mm256_mul_pd(z, z);
+    let mut p = set(1.0 / 13.0);
+    for k in [
+        -1.0 / 11.0,
+        1.0 / 9.0,
+        -1.0 / 7.0,
+        1.0 / 5.0,
+        -1.0 / 3.0,
+        1.0,
+    ] {
+        p = _mm256_add_pd(set(k), _mm256_mul_pd(z2, p));
+    }
+    let a = _mm256_add_pd(_mm256_and_pd(red, set(FRAC_PI_4)), _mm256_mul_pd(z, p));
+    let a = _mm256_blendv_pd(a, _mm256_sub_pd(set(FRAC_PI_2), a), swap);
+    let a = _mm256_blendv_pd(
+        a,
+        _mm256_sub_pd(set(PI), a),
+        _mm256_cmp_pd::<_CMP_LT_OQ>(x, set(0.0)),
+    );
+    _mm256_blendv_pd(
+        a,
+        _mm256_sub_pd(set(0.0), a),
+        _mm256_cmp_pd::<_CMP_LT_OQ>(y, set(0.0)),
+    )
+}
+
+/// The directions relative to the heading of the four corners `(x[k], y[k])` as seen from
+/// (gx, gy), by [`atan2_avx`].
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+unsafe fn corner_angles_avx(fan: &Fan, gx: f64, gy: f64, x: [f64; 4], y: [f64; 4]) -> [f64; 4] {
+    use std::arch::x86_64::*;
+    // SAFETY: the arrays hold four values each.
+    let (vx, vy) = unsafe {
+        (
+            _mm256_sub_pd(_mm256_loadu_pd(x.as_ptr()), _mm256_set1_pd(gx)),
+            _mm256_sub_pd(_mm256_loadu_pd(y.as_ptr()), _mm256_set1_pd(gy)),
+        )
+    };
+    let (c, s) = (_mm256_set1_pd(fan.cos), _mm256_set1_pd(fan.sin));
+    let u = _mm256_add_pd(_mm256_mul_pd(vx, c), _mm256_mul_pd(vy, s));
+    let v = _mm256_sub_pd(_mm256_mul_pd(vy, c), _mm256_mul_pd(vx, s));
+    let mut out = [0.0; 4];
+    // SAFETY: `out` holds four values; the CPU has AVX (this function's contract).
+    unsafe { _mm256_storeu_pd(out.as_mut_ptr(), atan2_avx(v, u)) };
+    out
+}
+
+/// The range in metres of a beam whose hit parameter is `cells` (infinity: none) and
+/// whose limit is `limit` metres, as the march's scan computes it.
+#[inline(always)]
+pub(super) fn metres(cells: f64, res: f64, limit: f64) -> f64 {
+    let r = cells * res;
+    if r < limit { r } else { limit }
+}
+
+/// One run as its crossings need it: the distance across to its line, the origin's
+/// coordinate along it, and its extent along it widened and narrowed by [`EPS`].
+struct Run {
+    dl: f64,
+    g_along: f64,
+    lo_out: f64,
+    hi_out: f64,
+    lo_in: f64,
+    hi_in: f64,
+}
+
+impl Run {
+    /// The run on the line `line` from `lo` to `hi`, seen from an origin at `g_line`
+    /// across and `g_along` along the lines.
+    #[inline(always)]
+    fn new(line: f32, lo: f32, hi: f32, g_line: f64, g_along: f64) -> Run {
+        let (lo, hi) = (f64::from(lo), f64::from(hi));
+        Run {
+            dl: f64::from(line) - g_line,
+            g_along,
+            lo_out: lo - EPS,
+            hi_out: hi + EPS,
+            lo_in: lo + EPS,
+            hi_in: hi - EPS,
+        }
+    }
+
+    /// Crosses the run with beams `from..to`: a beam whose crossing lies on the run (to
+    /// within [`EPS`]) and before its best so far takes it; one within [`EPS`] of an end
+    /// is flagged.
+    #[inline(always)]
+    fn cross(
+        &self,
+        inv: &[f64],
+        along: &[f64],
+        best: &mut [f64],
+        flag: &mut [f64],
+        from: usize,
+        to: usize,
+    ) {
+        for i in from..to {
+            let t = self.dl * inv[i];
+            let y = self.g_along + t * along[i];
+            let hit = (t > 0.0) & (t < best[i]) & (y >= self.lo_out) & (y <= self.hi_out);
+            let near = (y < self.lo_in) | (y > self.hi_in);
+            // As a minimum, not a select, for the same reason as in `cross_runs_avx`.
+            let tm = if hit { t } else { f64::INFINITY };
+            best[i] = if best[i] < tm { best[i] } else { tm };
+            flag[i] = if hit & near { 1.0 } else { flag[i] };
+        }
+    }
+}
+
+/// [`Sweep::cross`]'s crossings with AVX: for each run (line, lo, hi) its beams
+/// `first..=last` (none when last < first), four per instruction with the same operations
+/// lane by lane as [`Run::cross`], so the same bits; each run's groups of beams marked in
+/// `dirty`. A run within two lanes of beams (most are) takes exactly two, whatever its
+/// span: the extra beams cannot cross it, and no loop exit is mispredicted.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[allow(clippy::too_many_arguments)]
+#[inline]
+unsafe fn cross_runs_avx(
+    line: &[f32],
+    los: &[f32],
+    his: &[f32],
+    first: &[f64],
+    last: &[f64],
+    g_line: f64,
+    g_along: f64,
+    inv: &[f64],
+    along: &[f64],
+    best: &mut [f64],
+    flag: &mut [f64],
+    dirty: &mut [u64],
+) {
+    use std::arch::x86_64::*;
+    let m = first
+        .len()
+        .min(last.len())
+        .min(line.len())
+        .min(los.len())
+        .min(his.len());
+    let n = inv.len().min(along.len()).min(best.len()).min(flag.len());
+    let (zero, one) = (_mm256_setzero_pd(), _mm256_set1_pd(1.0));
+    let inf = _mm256_set1_pd(f64::INFINITY);
+    let g = _mm256_set1_pd(g_along);
+    let half = m.div_ceil(2);
+    // The groups of beams 0..2048 to mark dirty.
+    let mut marks = 0u128;
+    for k in 0..m {
+        // Runs from the two halves in turn: neighbouring runs (along a line) share beams,
+        // and updating the same beams in a row would wait on each other's stores.
+        let j = if k % 2 == 0 { k / 2 } else { half + k / 2 };
+        let live = first[j] <= last[j];
+        // A run with no beams is crossed, harmlessly, with beams 0..8 at a distance of 0
+        // (t = 0: no crossing).
+        let (b0, b1) = if live {
+            (first[j] as usize, last[j] as usize)
+        } else {
+            (0, 0)
+        };
+        let run = Run::new(line[j], los[j], his[j], g_line, g_along);
+        let dl = _mm256_set1_pd(if live { run.dl } else { 0.0 });
+        let (lo_out, hi_out) = (_mm256_set1_pd(run.lo_out), _mm256_set1_pd(run.hi_out));
+        let (lo_in, hi_in) = (_mm256_set1_pd(run.lo_in), _mm256_set1_pd(run.hi_in));
+        let from = b0 & !(LANES - 1);
+        let to = (b1 + 1).next_multiple_of(LANES).max(from + 2 * LANES);
+        assert!(to <= n, "beams {from}..{to} of {n}");
+        let (g0, g1) = (b0 / GROUP, b1 / GROUP);
+        if g1 < 128 {
+            // In registers (a store per run would chain the runs on their stores).
+            let bits = (u128::MAX >> (127 - g1)) & (u128::MAX << g0);
+            marks |= if live { bits } else { 0 };
+        } else if live {
+            for gm in g0..=g1 {
+                dirty[gm / 64] |= 1 << (gm % 64);
+            }
+        }
+        let mut i = from;
+        while i < to {
+            // SAFETY: i + 4 <= to <= the length of every array.
+            unsafe {
+                let t = _mm256_mul_pd(dl, _mm256_loadu_pd(inv.as_ptr().add(i)));
+                let y = _mm256_add_pd(g, _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))));
+                let b = _mm256_loadu_pd(best.as_ptr().add(i));
+                let hit = _mm256_and_pd(
+                    _mm256_and_pd(
+                        _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
+                        _mm256_cmp_pd::<_CMP_LT_OQ>(t, b),
+                    ),
+                    _mm256_and_pd(
+                        _mm256_cmp_pd::<_CMP_GE_OQ>(y, lo_out),
+                        _mm256_cmp_pd::<_CMP_LE_OQ>(y, hi_out),
+                    ),
+                );
+                let near = _mm256_or_pd(
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(y, lo_in),
+                    _mm256_cmp_pd::<_CMP_GT_OQ>(y, hi_in),
+                );
+                // min(b, hit ? t : inf) is hit ? t : b (a hit has t < b); as a blend the
+                // compiler would make it a masked store, which is slow on AMD CPUs and
+                // stalls the next run's loads.
+                let tm = _mm256_blendv_pd(inf, t, hit);
+                _mm256_storeu_pd(best.as_mut_ptr().add(i), _mm256_min_pd(b, tm));
+                let f = _mm256_loadu_pd(flag.as_ptr().add(i));
+                let set = _mm256_and_pd(_mm256_and_pd(hit, near), one);
+                _mm256_storeu_pd(flag.as_mut_ptr().add(i), _mm256_or_pd(f, set));
+            }
+            i += LANES;
+        }
+    }
+    for (w, word) in dirty.iter_mut().take(2).enumerate() {
+        *word |= (marks >> (64 * w)) as u64;
+    }
+}
+
+/// The beams (one or two index ranges) that can see the box `[x0, x1] x [y0, y1]` from
+/// (gx, gy) outside it: those between its corners' directions, with [`ANGLE_SLACK`] to
+/// spare on each side.
+#[inline(always)]
+fn beams_seeing<const AVX: bool>(
+    fan: &Fan,
+    n: usize,
+    gx: f64,
+    gy: f64,
+    [x0, y0, x1, y1]: [f64; 4],
+) -> [std::ops::Range<usize>; 2] {
+    let (c, s) = (fan.cos, fan.sin);
+    let (xs, ys) = ([x0, x1, x0, x1], [y0, y0, y1, y1]);
+    let mut angle = [0.0; 4];
+    #[cfg(target_arch = "x86_64")]
+    if AVX {
+        // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
+        angle = unsafe { corner_angles_avx(fan, gx, gy, xs, ys) };
+    }
+    if !AVX || cfg!(not(target_arch = "x86_64")) {
+        for k in 0..4 {
+            // The corner's direction relative to the heading.
+            let (vx, vy) = (xs[k] - gx, ys[k] - gy);
+            angle[k] = atan2_fast(vy * c - vx * s, vx * c + vy * s);
+        }
+    }
+    let lo = angle[0].min(angle[1]).min(angle[2].min(angle[3]));
+    let hi = angle[0].max(angle[1]).max(angle[2].max(angle[3]));
+    let slack = ANGLE_SLACK * fan.inv_inc;
+    let top = (n - 1) as f64;
+    let beams = |a: f64, z: f64| {
+        let first = ((a + fan.half_fov) * fan.inv_inc - slack).ceil().max(0.0);
+        let last = ((z + fan.half_fov) * fan.inv_inc + slack).floor().min(top);
+        if first <= last {
+            first as usize..last as usize + 1
+        } else {
+            0..0
+        }
+    };
+    if hi - lo > PI {
+        // A box seen from outside spans less than a half turn: this one spans the
+        // direction straight behind. Measured from 0 to 2 pi its span is one interval.
+        let turn = |a: f64| if a < 0.0 { a + 2.0 * PI } else { a };
+        let (a, b, c, d) = (
+            turn(angle[0]),
+            turn(angle[1]),
+            turn(angle[2]),
+            turn(angle[3]),
+        );
+        let (lo, hi) = (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)));
+        [beams(lo, PI), beams(-PI, hi - 2.0 * PI)]
+    } else {
+        [beams(lo, hi), 0..0]
+    }
+}
+
+/// atan2(y, x) within 1e-6 radians (a series on an octant reduced to |z| <= tan(pi/8)),
+/// without branches (so that loops over it vectorise); the argument must not be (0, 0).
+#[inline(always)]
+fn atan2_fast(y: f64, x: f64) -> f64 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let swap = ay > ax;
+    let (num, den) = if swap { (ax, ay) } else { (ay, ax) };
+    // atan(z) = pi/4 + atan((z - 1) / (z + 1)) above tan(pi/8): one division either way.
+    let red = num > 0.414_213_562_373_095 * den;
+    let z = if red { num - den } else { num } / if red { num + den } else { den };
+    let z2 = z * z;
+    let series = z
+        * (1.0
+            + z2 * (-1.0 / 3.0
+                + z2 * (1.0 / 5.0
+                    + z2 * (-1.0 / 7.0 + z2 * (1.0 / 9.0 + z2 * (-1.0 / 11.0 + z2 / 13.0))))));
+    let a = if red { FRAC_PI_4 } else { 0.0 } + series;
+    let a = if swap { FRAC_PI_2 - a } else { a };
+    let a = if x < 0.0 { PI - a } else { a };
+    if y < 0.0 { -a } else { a }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::wrap_angle;
+    use std::f64::consts::TAU;
+
+    #[test]
+    fn atan2_fast_is_within_its_bound() {
+        let mut worst = 0.0f64;
+        for i in 0..20_000 {
+            let a = -PI + TAU * i as f64 / 20_000.0;
+            for r in [1e-3, 1.0, 1e4] {
+                let (y, x) = (r * libm::sin(a), r * libm::cos(a));
+                let e = wrap_angle(atan2_fast(y, x) - libm::atan2(y, x)).abs();
+                worst = worst.max(e);
+            }
+        }
+        assert!(worst < 1e-6, "worst error {worst}");
+        assert!(worst * 5.0 < ANGLE_SLACK);
+    }
+}
