@@ -9,7 +9,7 @@
 //! car. Rays/s times the LIDAR alone from poses recorded on the track. The report names
 //! the map and the LIDAR's code path and the CPU's SIMD features, since the scan's speed
 //! depends on them (`--scan-path` forces a narrower path, to measure what a CPU without
-//! AVX-512 gets). `--worlds N` steps N worlds of `--agents` cars as one batch
+//! AVX-512 gets; `--scan-algorithm sweep` measures the angular sweep instead of the march). `--worlds N` steps N worlds of `--agents` cars as one batch
 //! (`Worlds::step`, the way an env session of N envs steps them, each world's scans
 //! written into one packed buffer), still on one thread.
 
@@ -46,6 +46,10 @@ pub struct PerfArgs {
     /// LIDAR code path: portable, avx or avx512 (default: the widest this CPU has).
     #[arg(long)]
     scan_path: Option<String>,
+    /// LIDAR algorithm: the march (default) or the angular sweep over the map's wall
+    /// faces; both give the same ranges, at speeds that depend on the map and the CPU.
+    #[arg(long, value_enum, default_value_t = ScanAlgorithm::March)]
+    scan_algorithm: ScanAlgorithm,
     /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
     /// vehicle).
     #[arg(long, value_name = "FILE")]
@@ -53,6 +57,23 @@ pub struct PerfArgs {
     /// Print JSON.
     #[arg(long)]
     json: bool,
+}
+
+/// How the exact LIDAR scan is computed (the same bits either way).
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScanAlgorithm {
+    /// Grid march accelerated by the clearance table.
+    March,
+    /// Angular sweep over the map's wall faces.
+    Sweep,
+}
+
+/// The scans of a measurement: code path and algorithm.
+#[derive(Clone, Copy)]
+struct Scan {
+    path: ScanPath,
+    algorithm: ScanAlgorithm,
 }
 
 #[derive(Serialize)]
@@ -65,6 +86,8 @@ struct PerfReport {
     scan_path: String,
     /// How that path reads the clearance table here (`gather` or `scalar loads`).
     scan_clearance_loads: String,
+    /// `march` or `sweep`.
+    scan_algorithm: ScanAlgorithm,
     /// The CPU's SIMD features, space-separated.
     cpu_features: String,
     agents: usize,
@@ -129,7 +152,7 @@ fn drive(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
     worlds: usize,
-    scan: Option<ScanPath>,
+    scan: Option<Scan>,
     seconds: f64,
     vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<Run> {
@@ -178,7 +201,7 @@ fn drive(
 fn perf_world(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
-    scan: Option<ScanPath>,
+    scan: Option<Scan>,
     vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<World> {
     let mut config = WorldConfig::with_agents(agents);
@@ -188,8 +211,9 @@ fn perf_world(
         a.params = vehicle.clone();
     }
     let mut world = World::new(circuit.clone(), config)?;
-    if let Some(path) = scan {
-        world.set_scan_path(path)?;
+    if let Some(scan) = scan {
+        world.set_scan_path(scan.path)?;
+        world.set_scan_sweep(scan.algorithm == ScanAlgorithm::Sweep);
     }
     Ok(world)
 }
@@ -205,7 +229,7 @@ fn drive_batch(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
     worlds: usize,
-    scan: Option<ScanPath>,
+    scan: Option<Scan>,
     seconds: f64,
     vehicle: &paddock_sim::params::VehicleParams,
 ) -> Result<Run> {
@@ -272,7 +296,9 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         Some(name) => ScanPath::from_name(name)
             .with_context(|| format!("--scan-path {name:?} is not one of portable, avx, avx512"))?,
     };
-    let lidar = Lidar::new(LidarConfig::default()).with_path(path)?;
+    let lidar = Lidar::new(LidarConfig::default())
+        .with_path(path)?
+        .with_sweep(args.scan_algorithm == ScanAlgorithm::Sweep);
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
     let noscan = drive(
@@ -292,7 +318,10 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
             &circuit,
             args.agents,
             args.worlds,
-            Some(path),
+            Some(Scan {
+                path,
+                algorithm: args.scan_algorithm,
+            }),
             args.seconds,
             &vehicle,
         )?;
@@ -322,6 +351,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         map_resolution: circuit.map.resolution(),
         scan_path: path.name().to_string(),
         scan_clearance_loads: path.clearance_loads().to_string(),
+        scan_algorithm: args.scan_algorithm,
         cpu_features: cpu_features(),
         agents: args.agents,
         worlds: args.worlds,
@@ -343,9 +373,13 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         report.worlds
     );
     outln!(
-        "  LIDAR path {}, clearances by {} (CPU features: {})",
+        "  LIDAR path {}, clearances by {}, {} (CPU features: {})",
         report.scan_path,
         report.scan_clearance_loads,
+        match report.scan_algorithm {
+            ScanAlgorithm::March => "march",
+            ScanAlgorithm::Sweep => "angular sweep",
+        },
         report.cpu_features
     );
     if let Some(r) = report.agent_steps_per_s_scan {

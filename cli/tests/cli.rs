@@ -39,6 +39,25 @@ fn perf_json_has_the_documented_keys() {
     assert_eq!(v["worlds"], 3, "{out}");
     assert_eq!(v["agents"], 2, "{out}");
     assert!(v["agent_steps_per_s_scan"].as_f64().unwrap() > 0.0, "{out}");
+    assert_eq!(v["scan_algorithm"], "march", "the default: {out}");
+    // the angular sweep, named in the report
+    let (ok, out, err) = paddock(&[
+        "perf",
+        "--json",
+        "--seconds",
+        "0.2",
+        "--scan-algorithm",
+        "sweep",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["scan_algorithm"], "sweep", "{out}");
+    assert!(v["rays_per_s"].as_f64().unwrap() > 0.0, "{out}");
+    let (ok, _, err) = paddock(&["perf", "--scan-algorithm", "raytrace"]);
+    assert!(
+        !ok && err.contains("raytrace") && err.contains("march, sweep"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -2,7 +2,8 @@
 //! 3 m wide with 0.1 m walls, 0.05 m cells, 1040 x 1040 cells (free outside the walls,
 //! like the shipped track maps), from poses on the centre line heading along it.
 //! Compares the exact [`Lidar::scan`] on each code path this CPU has (`scan/portable`,
-//! `scan/avx`, `scan/avx512`) with the reference port [`Lidar::scan_reference`], on that
+//! `scan/avx`, `scan/avx512`), by the march and by the angular sweep over wall faces
+//! (`scan_sweep/avx`, ...), with the reference port [`Lidar::scan_reference`], on that
 //! map and on the default shipped map. Rays per second = 1080 / time per scan
 //! (criterion's "thrpt", in elements). On a shared machine use the `scan_rounds` bench
 //! instead (CPU time, alternating rounds); figures per path: `docs/performance-scan.md`.
@@ -131,15 +132,20 @@ fn bench_scan(c: &mut Criterion) {
         group.throughput(Throughput::Elements(lidar.num_beams() as u64));
         let mut i = 0;
         // Every path this CPU has, labelled (`scan/avx` is what AVX2-only CPUs run).
-        for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
-            let lidar = lidar.clone().with_path(path).expect("supported path");
-            group.bench_function(format!("scan/{path}"), |b| {
-                b.iter(|| {
-                    i = (i + 1) % poses.len();
-                    lidar.scan(map, black_box(poses[i]), &[], &mut out);
-                    black_box(&out);
-                })
-            });
+        // Then the same by the angular sweep over wall faces (`scan_sweep/avx`, ...).
+        for sweep in [false, true] {
+            for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
+                let lidar = lidar.clone().with_path(path).expect("supported path");
+                let lidar = lidar.with_sweep(sweep);
+                let id = if sweep { "scan_sweep" } else { "scan" };
+                group.bench_function(format!("{id}/{path}"), |b| {
+                    b.iter(|| {
+                        i = (i + 1) % poses.len();
+                        lidar.scan(map, black_box(poses[i]), &[], &mut out);
+                        black_box(&out);
+                    })
+                });
+            }
         }
         group.bench_function("scan_reference", |b| {
             b.iter(|| {

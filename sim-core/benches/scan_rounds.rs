@@ -10,7 +10,7 @@
 //! core; the wall-clock figures are printed too. Configurations: one 1080-beam scan from
 //! centreline poses on the default shipped map (and on `$PADDOCK_SHARED/maps/Spa` when
 //! that is set), and `World::step` with 1 and 2 cars, with scans on each path and
-//! without scans.
+//! without scans; each scan by the march and by the angular sweep (`... sweep`).
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -78,6 +78,7 @@ fn world_case<'a>(
     circuit: &std::sync::Arc<Circuit>,
     agents: usize,
     path: Option<ScanPath>,
+    sweep: bool,
 ) -> Case<'a> {
     let mut cfg = WorldConfig::with_agents(agents);
     cfg.collision_mode = CollisionMode::Ignore;
@@ -88,11 +89,13 @@ fn world_case<'a>(
     if let Some(p) = path {
         w.set_scan_path(p).expect("supported path");
     }
+    w.set_scan_sweep(sweep);
     w.reset(0, &Starts::Random).expect("reset");
     let start = w.snapshot().expect("snapshot");
     let actions = vec![Action::new(0.05, 4.0); agents];
     let mut k = 0u32;
     let name = match path {
+        Some(p) if sweep => format!("world {agents} car(s), scan {p} sweep"),
         Some(p) => format!("world {agents} car(s), scan {p}"),
         None => format!("world {agents} car(s), no scan"),
     };
@@ -162,9 +165,11 @@ fn main() {
         }
     }
     for agents in [1, 2] {
-        cases.push(world_case(&circuit, agents, None));
-        for &p in &paths {
-            cases.push(world_case(&circuit, agents, Some(p)));
+        cases.push(world_case(&circuit, agents, None, false));
+        for sweep in [false, true] {
+            for &p in &paths {
+                cases.push(world_case(&circuit, agents, Some(p), sweep));
+            }
         }
     }
     println!(

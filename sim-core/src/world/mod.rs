@@ -86,6 +86,17 @@ impl World {
         self.lidar.path()
     }
 
+    /// Takes this world's LIDAR scans by the angular sweep over wall faces (`on`) or by
+    /// the march alone (see [`Lidar::with_sweep`]): the same bits, another speed.
+    pub fn set_scan_sweep(&mut self, on: bool) {
+        self.lidar = Arc::new((*self.lidar).clone().with_sweep(on));
+    }
+
+    /// Whether this world's scans take the angular sweep.
+    pub fn scan_sweeps(&self) -> bool {
+        self.lidar.sweeps()
+    }
+
     pub fn num_agents(&self) -> usize {
         self.config.agents.len()
     }
