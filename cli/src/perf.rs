@@ -46,10 +46,11 @@ pub struct PerfArgs {
     /// LIDAR code path: portable, avx or avx512 (default: the widest this CPU has).
     #[arg(long)]
     scan_path: Option<String>,
-    /// LIDAR algorithm: the march (default) or the angular sweep over the map's wall
-    /// faces; both give the same ranges, at speeds that depend on the map and the CPU.
-    #[arg(long, value_enum, default_value_t = ScanAlgorithm::March)]
-    scan_algorithm: ScanAlgorithm,
+    /// LIDAR algorithm: the march or the angular sweep over the map's wall faces (default:
+    /// the sweep unless the path is avx512); both give the same ranges, at speeds that
+    /// depend on the map and the CPU.
+    #[arg(long, value_enum)]
+    scan_algorithm: Option<ScanAlgorithm>,
     /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
     /// vehicle).
     #[arg(long, value_name = "FILE")]
@@ -73,7 +74,7 @@ pub enum ScanAlgorithm {
 #[derive(Clone, Copy)]
 struct Scan {
     path: ScanPath,
-    algorithm: ScanAlgorithm,
+    sweep: bool,
 }
 
 #[derive(Serialize)]
@@ -213,7 +214,7 @@ fn perf_world(
     let mut world = World::new(circuit.clone(), config)?;
     if let Some(scan) = scan {
         world.set_scan_path(scan.path)?;
-        world.set_scan_sweep(scan.algorithm == ScanAlgorithm::Sweep);
+        world.set_scan_sweep(scan.sweep);
     }
     Ok(world)
 }
@@ -296,9 +297,11 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         Some(name) => ScanPath::from_name(name)
             .with_context(|| format!("--scan-path {name:?} is not one of portable, avx, avx512"))?,
     };
-    let lidar = Lidar::new(LidarConfig::default())
-        .with_path(path)?
-        .with_sweep(args.scan_algorithm == ScanAlgorithm::Sweep);
+    let mut lidar = Lidar::new(LidarConfig::default()).with_path(path)?;
+    if let Some(algorithm) = args.scan_algorithm {
+        lidar = lidar.with_sweep(algorithm == ScanAlgorithm::Sweep);
+    }
+    let sweep = lidar.sweeps();
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
     let noscan = drive(
@@ -318,10 +321,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
             &circuit,
             args.agents,
             args.worlds,
-            Some(Scan {
-                path,
-                algorithm: args.scan_algorithm,
-            }),
+            Some(Scan { path, sweep }),
             args.seconds,
             &vehicle,
         )?;
@@ -351,7 +351,11 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         map_resolution: circuit.map.resolution(),
         scan_path: path.name().to_string(),
         scan_clearance_loads: path.clearance_loads().to_string(),
-        scan_algorithm: args.scan_algorithm,
+        scan_algorithm: if sweep {
+            ScanAlgorithm::Sweep
+        } else {
+            ScanAlgorithm::March
+        },
         cpu_features: cpu_features(),
         agents: args.agents,
         worlds: args.worlds,

@@ -39,20 +39,31 @@ fn perf_json_has_the_documented_keys() {
     assert_eq!(v["worlds"], 3, "{out}");
     assert_eq!(v["agents"], 2, "{out}");
     assert!(v["agent_steps_per_s_scan"].as_f64().unwrap() > 0.0, "{out}");
-    assert_eq!(v["scan_algorithm"], "march", "the default: {out}");
-    // the angular sweep, named in the report
-    let (ok, out, err) = paddock(&[
-        "perf",
-        "--json",
-        "--seconds",
-        "0.2",
-        "--scan-algorithm",
-        "sweep",
-    ]);
-    assert!(ok, "{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
-    assert_eq!(v["scan_algorithm"], "sweep", "{out}");
-    assert!(v["rays_per_s"].as_f64().unwrap() > 0.0, "{out}");
+    // the default algorithm: the march on the AVX-512 path, else the angular sweep
+    let default = if v["scan_path"] == "avx512" {
+        "march"
+    } else {
+        "sweep"
+    };
+    assert_eq!(v["scan_algorithm"], default, "{out}");
+    // each algorithm forced on the portable path, named in the report
+    for algorithm in ["march", "sweep"] {
+        let (ok, out, err) = paddock(&[
+            "perf",
+            "--json",
+            "--seconds",
+            "0.2",
+            "--scan-path",
+            "portable",
+            "--scan-algorithm",
+            algorithm,
+        ]);
+        assert!(ok, "{err}");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        assert_eq!(v["scan_algorithm"], algorithm, "{out}");
+        assert_eq!(v["scan_path"], "portable", "{out}");
+        assert!(v["rays_per_s"].as_f64().unwrap() > 0.0, "{out}");
+    }
     let (ok, _, err) = paddock(&["perf", "--scan-algorithm", "raytrace"]);
     assert!(
         !ok && err.contains("raytrace") && err.contains("march, sweep"),

@@ -9,7 +9,16 @@
 //! square ahead of it, and only when heading into a wall does it take exact one-cell
 //! grid-traversal steps (Amanatides-Woo). Several beams are traced interleaved so their
 //! memory loads overlap; the march runs on the widest [`ScanPath`] the CPU supports
-//! (AVX-512, AVX or portable), all giving the same bits. [`Lidar::scan_reference`]
+//! (AVX-512, AVX or portable), all giving the same bits.
+//!
+//! On the AVX and portable paths a scan is taken instead, by default, by an angular
+//! sweep over the map's wall faces (`sweep`): runs of cell sides between free and
+//! occupied cells, block by block from the car outwards, crossed with the beams that can
+//! see them by the march's own expressions; beams whose crossings fall within 1e-9 cells
+//! of a run's end, where the march's rounding decides, are marched. So it gives the
+//! march's bits (tested on every track), and on most maps it is faster than the march
+//! there; on AVX-512 the march is faster ([`Lidar::with_sweep`] forces either).
+//! [`Lidar::scan_reference`]
 //! reproduces the reference's sphere tracing on the distance transform, including its
 //! angle quantisation, for conformance with f1tenth_gym (see
 //! `shared/conformance/f1tenth_gym_scan`).
@@ -77,8 +86,9 @@ pub struct Lidar {
     /// Whether each box is tested only on the beams that can meet it (tests turn it off
     /// to compare with testing every beam).
     cull_boxes: bool,
-    /// Whether scans take the angular sweep over wall faces (same bits as the march).
-    sweep: bool,
+    /// Whether scans take the angular sweep over wall faces (same bits as the march);
+    /// `None`: unless the path is AVX-512 (see [`Lidar::sweeps`]).
+    sweep: Option<bool>,
 }
 
 impl Lidar {
@@ -103,7 +113,7 @@ impl Lidar {
             reference,
             path: None,
             cull_boxes: true,
-            sweep: false,
+            sweep: None,
         }
     }
 
@@ -122,16 +132,23 @@ impl Lidar {
     }
 
     /// This LIDAR with its scans taken by the angular sweep over the map's wall faces
-    /// (`on`) or by the march alone: the same bits either way (tested); only the speed
-    /// differs.
+    /// (`on`) or by the march alone, whatever the path: the same bits either way
+    /// (tested); only the speed differs.
     pub fn with_sweep(mut self, on: bool) -> Self {
-        self.sweep = on;
+        self.sweep = Some(on);
         self
     }
 
-    /// Whether scans take the angular sweep (see [`Lidar::with_sweep`]).
+    /// Whether scans take the angular sweep: as forced by [`Lidar::with_sweep`], else on
+    /// every path but AVX-512 (there the march is faster; on the AVX and portable paths
+    /// the sweep is, on most maps: `docs/performance-scan.md`).
     pub fn sweeps(&self) -> bool {
-        self.sweep
+        self.sweeps_on(self.path())
+    }
+
+    /// [`Lidar::sweeps`] for scans on `path`.
+    fn sweeps_on(&self, path: ScanPath) -> bool {
+        self.sweep.unwrap_or(path < ScanPath::Avx512)
     }
 
     /// The code path [`Lidar::scan`] takes: the one forced by [`Lidar::with_path`], else
@@ -218,6 +235,7 @@ impl Lidar {
             res,
             inv_res,
             max_range,
+            sweep: self.sweeps_on(path),
             boxes: &boxes,
         };
         #[cfg(target_arch = "x86_64")]
@@ -262,7 +280,7 @@ impl Lidar {
     /// `level`, see [`ScanPath`]), metres.
     #[inline(always)]
     fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
-        if self.sweep && self.scan_sweep::<AVX>(map, job, out, level) {
+        if job.sweep && self.scan_sweep::<AVX>(map, job, out, level) {
             return;
         }
         let n = out.len();
@@ -455,6 +473,8 @@ struct ScanJob<'a> {
     res: f64,
     inv_res: f64,
     max_range: f64,
+    /// Whether to take the angular sweep.
+    sweep: bool,
     /// Each box, with the beams that can meet it.
     boxes: &'a [(BoxFrame, BeamRanges)],
 }

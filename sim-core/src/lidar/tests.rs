@@ -354,7 +354,7 @@ fn reference_scan_of_occupied_origin_is_zero_and_free_map_is_max() {
 #[test]
 fn scan_is_bit_identical_across_simd_paths() {
     let mut rng = Rng::new(99);
-    let lidar = Lidar::new(LidarConfig::default());
+    let lidar = Lidar::new(LidarConfig::default()).with_sweep(false);
     let (mut fast, mut portable) = (vec![0.0; 1080], vec![0.0; 1080]);
     for _ in 0..6 {
         let (w, h) = (60 + rng.below(100) as usize, 60 + rng.below(100) as usize);
@@ -491,7 +491,8 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
     let check = |lidar: &Lidar, map: &Map, pose: Pose, boxes: &[Obb], what: &str| {
         let n = lidar.num_beams();
         let (mut want, mut got) = (vec![0.0; n], vec![0.0; n]);
-        lidar.scan_with(map, pose, boxes, &mut want, ScanPath::Portable);
+        let march = lidar.clone().with_sweep(false);
+        march.scan_with(map, pose, boxes, &mut want, ScanPath::Portable);
         let swept = lidar.clone().with_sweep(true);
         for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
             swept.scan_with(map, pose, boxes, &mut got, path);
