@@ -7,9 +7,9 @@
 //! and crosses each run with the beams that can see its block: a beam going +x meets a
 //! run on the line x = X at `t = (X - gx) / dx` (the march's own expression, so the same
 //! bits) if `gy + t dy` lies on the run. A beam's range is the least such t. Blocks wholly
-//! beyond every beam's current range are skipped (per block of 16 beams the largest
-//! current range is kept), and the sweep ends at the first ring of blocks beyond all of
-//! them.
+//! beyond the current range of every beam that can see them are skipped (per group of 16
+//! beams the largest current range is kept), first by groups of 4 x 4 blocks, then one
+//! by one, and the sweep ends at the first ring of blocks beyond all of them.
 //!
 //! The march decides which cell a ray enters at a cell corner by its own rounding; the
 //! sweep cannot see those decisions. So a beam whose crossing of a run lies within
@@ -30,6 +30,8 @@ use crate::map::faces::{BLOCK, MINUS_X, MINUS_Y, PLUS_X, PLUS_Y, WallFaces};
 const EPS: f64 = 1e-9;
 /// Beams per block of the culling maxima.
 const GROUP: usize = 16;
+/// Blocks per side of a group of blocks culled at once before its blocks one by one.
+const SUPER: usize = 4;
 /// A run's beams are crossed in whole aligned lanes of this many (the extra beams cannot
 /// cross it: testing them changes nothing).
 const LANES: usize = 4;
@@ -54,6 +56,14 @@ pub(super) struct Sweep {
     /// crossing test may have lowered since.
     group_max: Vec<f64>,
     dirty: Vec<u64>,
+    /// Per group of SUPER x SUPER blocks: the scan (`serial`) in which it was found
+    /// beyond every beam that can see it, and the scan and ring (`stamp`) in which it was
+    /// last tested.
+    super_dead: Vec<u64>,
+    super_tested: Vec<u64>,
+    /// This thread's scans so far, and `serial << 16 | ring` of the ring being swept.
+    serial: u64,
+    stamp: u64,
     /// The range limit of each beam in metres (the caller's scratch).
     pub limit: Vec<f64>,
     /// Per run of the block side being crossed: its first and last beam.
@@ -202,6 +212,12 @@ impl Sweep {
                 .iter()
                 .fold(0.0, |a, &b| if b > a { b } else { a });
         }
+        let supers = faces.blocks_x.div_ceil(SUPER) * faces.blocks_y.div_ceil(SUPER);
+        if self.super_dead.len() < supers {
+            self.super_dead.resize(supers, 0);
+            self.super_tested.resize(supers, 0);
+        }
+        self.serial += 1;
         self.sweep::<AVX>(faces, gx, gy, fan);
         let (best, tmax, limit) = (&self.best[..n], &self.tmax[..n], &self.limit[..n]);
         for i in 0..n {
@@ -237,6 +253,7 @@ impl Sweep {
             if (k - 1) as f64 * BLOCK as f64 * (1.0 - 1e-9) - EPS > reach {
                 break;
             }
+            self.stamp = self.serial << 16 | (k as u64 & 0xffff);
             if k == 0 {
                 self.visit::<AVX>(faces, ox, oy, gx, gy, fan, reach);
             } else {
@@ -303,27 +320,30 @@ impl Sweep {
         if dmin > reach {
             return;
         }
-        let n = self.tmax.len();
-        // From within a cell of the block (or inside it) every beam may see it.
-        let ranges = if ex < 1.0 && ey < 1.0 {
-            [0..n, 0..0]
-        } else {
-            beams_seeing::<AVX>(fan, n, gx, gy, [x0, y0, x1, y1])
-        };
-        // The largest range of the beams that can see the block.
-        let mut far = 0.0f64;
-        for beams in ranges {
-            if beams.is_empty() {
-                continue;
-            }
-            let (g0, g1) = (beams.start / GROUP, (beams.end - 1) / GROUP);
-            far = self.group_max[g0..=g1]
-                .iter()
-                .fold(far, |a, &b| if b > a { b } else { a });
+        // First its group of blocks, once per ring: far blocks are mostly culled whole
+        // groups at a time, and once culled a group stays culled (ranges only shrink).
+        let si = (by / SUPER) * faces.blocks_x.div_ceil(SUPER) + bx / SUPER;
+        if self.super_dead[si] == self.serial {
+            return;
         }
+        if self.super_tested[si] != self.stamp {
+            self.super_tested[si] = self.stamp;
+            let side = (SUPER * BLOCK) as f64;
+            let (sx0, sy0) = ((bx / SUPER) as f64 * side, (by / SUPER) as f64 * side);
+            let (sx1, sy1) = (sx0 + side, sy0 + side);
+            let sex = (sx0 - gx).max(gx - sx1).max(0.0);
+            let sey = (sy0 - gy).max(gy - sy1).max(0.0);
+            let sdmin = libm::sqrt(sex * sex + sey * sey) * (1.0 - 1e-9) - EPS;
+            if sdmin > self.seen::<AVX>(fan, gx, gy, [sx0, sy0, sx1, sy1], sex, sey) {
+                self.super_dead[si] = self.serial;
+                return;
+            }
+        }
+        let far = self.seen::<AVX>(fan, gx, gy, [x0, y0, x1, y1], ex, ey);
         if dmin > far {
             return;
         }
+        let n = self.tmax.len();
         if x1 > gx {
             self.cross::<true, AVX>(faces, faces.runs(bx, by, PLUS_X), gx, gy, fan, far);
         }
@@ -346,6 +366,39 @@ impl Sweep {
                     .fold(0.0, |a, &b| if b > a { b } else { a });
             }
         }
+    }
+
+    /// The largest current range of the beams that can see the box `[x0, x1] x [y0, y1]`,
+    /// `ex` and `ey` from (gx, gy) along x and y (from within a cell of the box, or inside
+    /// it, every beam may).
+    #[inline(always)]
+    fn seen<const AVX: bool>(
+        &self,
+        fan: &Fan,
+        gx: f64,
+        gy: f64,
+        rect: [f64; 4],
+        ex: f64,
+        ey: f64,
+    ) -> f64 {
+        let n = self.tmax.len();
+        let ranges = if ex < 1.0 && ey < 1.0 {
+            [0..n, 0..0]
+        } else {
+            beams_seeing::<AVX>(fan, n, gx, gy, rect)
+        };
+        // The largest range of the beams that can see the box.
+        let mut far = 0.0f64;
+        for beams in ranges {
+            if beams.is_empty() {
+                continue;
+            }
+            let (g0, g1) = (beams.start / GROUP, (beams.end - 1) / GROUP);
+            far = self.group_max[g0..=g1]
+                .iter()
+                .fold(far, |a, &b| if b > a { b } else { a });
+        }
+        far
     }
 
     /// Crosses the runs `runs` (on lines x = const if `VERTICAL`, else y = const) with
