@@ -348,6 +348,28 @@ fn reference_scan_of_occupied_origin_is_zero_and_free_map_is_max() {
     assert!(out.iter().all(|&r| r == 0.0));
 }
 
+/// A random pose on `map` or up to `margin` metres off it, heading within
+/// `[-turn, turn]`, and up to `boxes - 1` car-sized boxes within 2 m of it.
+fn random_scene(rng: &mut Rng, map: &Map, margin: f64, turn: f64, boxes: u64) -> (Pose, Vec<Obb>) {
+    let o = map.origin();
+    let (w, h) = (map.width() as f64, map.height() as f64);
+    let pose = Pose::new(
+        o.x + rng.uniform_range(-margin, w * map.resolution() + margin),
+        o.y + rng.uniform_range(-margin, h * map.resolution() + margin),
+        rng.uniform_range(-turn, turn),
+    );
+    let boxes = (0..rng.below(boxes))
+        .map(|_| Obb {
+            cx: pose.x + rng.uniform_range(-2.0, 2.0),
+            cy: pose.y + rng.uniform_range(-2.0, 2.0),
+            theta: rng.uniform_range(-3.0, 3.0),
+            half_length: 0.25,
+            half_width: 0.15,
+        })
+        .collect();
+    (pose, boxes)
+}
+
 /// A whole scan (box limits, beam rotations, march, metres) gives the same bits on the
 /// widest SIMD path this CPU has as on the portable one, boxes and off-map origins
 /// included.
@@ -360,21 +382,7 @@ fn scan_is_bit_identical_across_simd_paths() {
         let (w, h) = (60 + rng.below(100) as usize, 60 + rng.below(100) as usize);
         let map = random_map(&mut rng, w, h);
         for _ in 0..5 {
-            let o = map.origin();
-            let pose = Pose::new(
-                o.x + rng.uniform_range(-1.0, w as f64 * 0.05 + 1.0),
-                o.y + rng.uniform_range(-1.0, h as f64 * 0.05 + 1.0),
-                rng.uniform_range(-4.0, 4.0),
-            );
-            let boxes: Vec<Obb> = (0..rng.below(4))
-                .map(|_| Obb {
-                    cx: pose.x + rng.uniform_range(-2.0, 2.0),
-                    cy: pose.y + rng.uniform_range(-2.0, 2.0),
-                    theta: rng.uniform_range(-3.0, 3.0),
-                    half_length: 0.25,
-                    half_width: 0.15,
-                })
-                .collect();
+            let (pose, boxes) = random_scene(&mut rng, &map, 1.0, 4.0, 4);
             lidar.scan(&map, pose, &boxes, &mut fast);
             lidar.scan_with(&map, pose, &boxes, &mut portable, ScanPath::Portable);
             for (i, (a, b)) in fast.iter().zip(&portable).enumerate() {
@@ -384,16 +392,9 @@ fn scan_is_bit_identical_across_simd_paths() {
     }
 }
 
-/// Testing each box only on the beams within its angular span gives the same bits as
-/// testing it on every beam: cars near and far, behind the car and across the ends of
-/// the beam fan, rotated, overlapping the origin's circle, with headings of any turn, on
-/// the default fan and on a narrow and a nearly full one.
-#[test]
-fn boxes_tested_on_their_beams_only_give_the_same_bits() {
-    let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
-    let map = &circuit.map;
-    let track = &circuit.track;
-    let configs = [
+/// The default fan, a narrow one of 64 beams and a nearly full one of 721 beams to 10 m.
+fn fans() -> [LidarConfig; 3] {
+    [
         LidarConfig::default(),
         LidarConfig {
             num_beams: 64,
@@ -406,7 +407,19 @@ fn boxes_tested_on_their_beams_only_give_the_same_bits() {
             max_range: 10.0,
             ..LidarConfig::default()
         },
-    ];
+    ]
+}
+
+/// Testing each box only on the beams within its angular span gives the same bits as
+/// testing it on every beam: cars near and far, behind the car and across the ends of
+/// the beam fan, rotated, overlapping the origin's circle, with headings of any turn, on
+/// the default fan and on a narrow and a nearly full one.
+#[test]
+fn boxes_tested_on_their_beams_only_give_the_same_bits() {
+    let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
+    let map = &circuit.map;
+    let track = &circuit.track;
+    let configs = fans();
     let mut rng = Rng::new(11);
     // beams that met a box before the walls
     let mut on_boxes = 0;
@@ -469,25 +482,12 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
         c
     };
     let (swept0, handed0) = counts();
-    let configs = [
-        LidarConfig::default(),
-        LidarConfig {
-            num_beams: 64,
-            fov: 1.0,
-            ..LidarConfig::default()
-        },
-        LidarConfig {
-            num_beams: 721,
-            fov: 5.9,
-            max_range: 10.0,
-            ..LidarConfig::default()
-        },
-        LidarConfig {
-            num_beams: 9,
-            fov: std::f64::consts::PI,
-            ..LidarConfig::default()
-        },
-    ];
+    let mut configs = fans().to_vec();
+    configs.push(LidarConfig {
+        num_beams: 9,
+        fov: std::f64::consts::PI,
+        ..LidarConfig::default()
+    });
     let check = |lidar: &Lidar, map: &Map, pose: Pose, boxes: &[Obb], what: &str| {
         let n = lidar.num_beams();
         let (mut want, mut got) = (vec![0.0; n], vec![0.0; n]);
@@ -520,21 +520,7 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
                 Map::from_grid("turned", w, h, 0.05, Pose::new(-1.0, 2.0, yaw), grid).unwrap()
             };
             for _ in 0..6 {
-                let o = map.origin();
-                let pose = Pose::new(
-                    o.x + rng.uniform_range(-0.5, w as f64 * 0.05 + 0.5),
-                    o.y + rng.uniform_range(-0.5, h as f64 * 0.05 + 0.5),
-                    rng.uniform_range(-7.0, 7.0),
-                );
-                let boxes: Vec<Obb> = (0..rng.below(3))
-                    .map(|_| Obb {
-                        cx: pose.x + rng.uniform_range(-2.0, 2.0),
-                        cy: pose.y + rng.uniform_range(-2.0, 2.0),
-                        theta: rng.uniform_range(-3.0, 3.0),
-                        half_length: 0.25,
-                        half_width: 0.15,
-                    })
-                    .collect();
+                let (pose, boxes) = random_scene(&mut rng, &map, 0.5, 7.0, 3);
                 check(&lidar, &map, pose, &boxes, "random grid");
             }
         }
