@@ -295,22 +295,8 @@ impl Lidar {
             let beam_cos = &self.beam_cos[start..start + len];
             let beam_sin = &self.beam_sin[start..start + len];
             let limits = &mut limits[..len];
-            limits.fill(job.max_range);
-            // The boxes first, so that the grid march stops early behind them; each box
-            // only on the beams that can meet it.
-            for (b, ranges) in job.boxes {
-                for beams in ranges {
-                    let (lo, hi) = (beams.start.max(start), beams.end.min(start + len));
-                    for j in lo..hi {
-                        let (bc, bs) = (self.beam_cos[j], self.beam_sin[j]);
-                        let (dx, dy) = (job.wc * bc - job.ws * bs, job.ws * bc + job.wc * bs);
-                        if let Some(t) = b.ray(job.x, job.y, dx, dy) {
-                            let lim = &mut limits[j - start];
-                            *lim = lim.min(t);
-                        }
-                    }
-                }
-            }
+            // The boxes first, so that the grid march stops early behind them.
+            self.box_limits(job, start, limits);
             for j in 0..len {
                 let (bc, bs) = (beam_cos[j], beam_sin[j]);
                 batch.dx[j] = job.gc * bc - job.gs * bs;
@@ -320,9 +306,7 @@ impl Lidar {
             let chunk_out = &mut out[start..start + len];
             batch.cast::<AVX>(map, job.gx, job.gy, len, chunk_out);
             for (o, &lim) in chunk_out.iter_mut().zip(limits.iter()) {
-                // `cast` gives cells, or infinity for "nothing before tmax".
-                let r = *o * job.res;
-                *o = if r < lim { r } else { lim };
+                *o = metres(*o, job.res, lim);
             }
             start += len;
         }
@@ -340,28 +324,19 @@ impl Lidar {
         level: u8,
     ) -> bool {
         let n = out.len();
-        let mut sw = SCAN_SWEEP.take().unwrap_or_default();
-        sw.resize(n);
-        sw.limit.fill(job.max_range);
-        for (b, ranges) in job.boxes {
-            for beams in ranges {
-                for j in beams.clone() {
-                    let (bc, bs) = (self.beam_cos[j], self.beam_sin[j]);
-                    let (dx, dy) = (job.wc * bc - job.ws * bs, job.ws * bc + job.wc * bs);
-                    if let Some(t) = b.ray(job.x, job.y, dx, dy) {
-                        sw.limit[j] = sw.limit[j].min(t);
-                    }
-                }
-            }
-        }
-        sw.prepare(&self.beam_cos, &self.beam_sin, job.gc, job.gs, job.inv_res);
         let fov = self.config.fov;
         let inc = if n > 1 { fov / (n - 1) as f64 } else { 0.0 };
         let fan = sweep::Fan::new(job.gc, job.gs, fov, inc);
-        if !sw.run::<AVX>(map, job.gx, job.gy, job.res, &fan, out) {
-            SCAN_SWEEP.set(Some(sw));
+        let Some(faces) =
+            sweep::faces_for(map, job.gx, job.gy, &fan, n, job.max_range * job.inv_res)
+        else {
             return false;
-        }
+        };
+        let mut sw = SCAN_SWEEP.take().unwrap_or_default();
+        sw.resize(n);
+        self.box_limits(job, 0, &mut sw.limit);
+        sw.prepare(&self.beam_cos, &self.beam_sin, job.gc, job.gs, job.inv_res);
+        sw.run::<AVX>(faces, job.gx, job.gy, job.res, &fan, out);
         if !sw.marched.is_empty() {
             let mut batch = SCAN_BATCH.take().unwrap_or_else(march::Batch::new);
             batch.simd = level;
@@ -374,13 +349,34 @@ impl Lidar {
                 batch.cast::<AVX>(map, job.gx, job.gy, chunk.len(), &mut cells);
                 for (j, &i) in chunk.iter().enumerate() {
                     let i = i as usize;
-                    out[i] = sweep::metres(cells[j], job.res, sw.limit[i]);
+                    out[i] = metres(cells[j], job.res, sw.limit[i]);
                 }
             }
             SCAN_BATCH.set(Some(batch));
         }
         SCAN_SWEEP.set(Some(sw));
         true
+    }
+
+    /// The range limits (metres) of beams `start..start + limits.len()`: `max_range`, or
+    /// nearer where a box of `job` is in the way (each box tried only on the beams that
+    /// can meet it).
+    #[inline(always)]
+    fn box_limits(&self, job: &ScanJob, start: usize, limits: &mut [f64]) {
+        limits.fill(job.max_range);
+        let end = start + limits.len();
+        for (b, ranges) in job.boxes {
+            for beams in ranges {
+                for j in beams.start.max(start)..beams.end.min(end) {
+                    let (bc, bs) = (self.beam_cos[j], self.beam_sin[j]);
+                    let (dx, dy) = (job.wc * bc - job.ws * bs, job.ws * bc + job.wc * bs);
+                    if let Some(t) = b.ray(job.x, job.y, dx, dy) {
+                        let lim = &mut limits[j - start];
+                        *lim = lim.min(t);
+                    }
+                }
+            }
+        }
     }
 
     /// This LIDAR testing every box on every beam (for tests of the culling).
@@ -456,6 +452,14 @@ impl Lidar {
     pub fn add_noise(&self, out: &mut [f64], rng: &mut Rng) {
         rng.add_normal(out, 0.0, self.config.noise_std);
     }
+}
+
+/// The range in metres of a beam whose hit parameter is `cells` (the march's and the
+/// sweep's result: infinity for none) and whose limit is `limit` metres.
+#[inline(always)]
+fn metres(cells: f64, res: f64, limit: f64) -> f64 {
+    let r = cells * res;
+    if r < limit { r } else { limit }
 }
 
 /// What every beam of one scan shares.

@@ -22,6 +22,7 @@
 
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
+use super::metres;
 use crate::map::Map;
 use crate::map::faces::{BLOCK, MINUS_X, MINUS_Y, PLUS_X, PLUS_Y, WallFaces};
 
@@ -101,6 +102,37 @@ impl Fan {
     }
 }
 
+/// The map's wall faces if the sweep applies to a scan of `n` beams of `fan` from the
+/// grid point (gx, gy) with range limits up to `tmax` cells; `None` when the caller must
+/// march every beam (see the module doc).
+pub(super) fn faces_for<'m>(
+    map: &'m Map,
+    gx: f64,
+    gy: f64,
+    fan: &Fan,
+    n: usize,
+    tmax: f64,
+) -> Option<&'m WallFaces> {
+    let (w, h) = (map.width() as f64, map.height() as f64);
+    let near_line = |g: f64| {
+        let f = g - libm::floor(g);
+        !(f > EPS && f < 1.0 - EPS)
+    };
+    let applies = n >= 2
+        && fan.fov > 0.0
+        && fan.fov < 1.9 * PI
+        && fan.inc > 0.0
+        && gx >= 0.0
+        && gy >= 0.0
+        && gx < w
+        && gy < h
+        && !near_line(gx)
+        && !near_line(gy)
+        && !map.cell_occupied(gx as i64, gy as i64)
+        && tmax.is_finite();
+    if applies { map.wall_faces() } else { None }
+}
+
 impl Sweep {
     /// Sizes the arrays for `n` beams (contents unspecified until filled). The arrays the
     /// crossings read are padded to whole lanes of four with beams that meet nothing (an
@@ -171,42 +203,22 @@ impl Sweep {
         }
     }
 
-    /// Sweeps the faces from the grid point (gx, gy) for the beams `dx`, `dy`, `tmax`
-    /// (see [`Sweep::prepare`]; `fan` says where they point). Returns false when the
-    /// sweep does not apply (see the module doc) and the caller must march every beam;
-    /// else `out[i]` is the range in metres (cells times `res`, capped at the beam's
+    /// Sweeps `faces` (those of the map, see [`faces_for`]) from the grid point (gx, gy)
+    /// for the beams `dx`, `dy`, `tmax` (see [`Sweep::prepare`]; `fan` says where they
+    /// point): `out[i]` is the range in metres (cells times `res`, capped at the beam's
     /// limit) for every beam not listed in `marched`: those the caller marches.
-    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(super) fn run<const AVX: bool>(
         &mut self,
-        map: &Map,
+        faces: &WallFaces,
         gx: f64,
         gy: f64,
         res: f64,
         fan: &Fan,
         out: &mut [f64],
-    ) -> bool {
+    ) {
         let n = self.tmax.len();
         self.marched.clear();
-        let Some(faces) = map.wall_faces() else {
-            return false;
-        };
-        let (w, h) = (map.width() as f64, map.height() as f64);
-        let near_line = |g: f64| {
-            let f = g - libm::floor(g);
-            !(f > EPS && f < 1.0 - EPS)
-        };
-        if n < 2
-            || !(fan.fov > 0.0 && fan.fov < 1.9 * PI && fan.inc > 0.0)
-            || !(gx >= 0.0 && gy >= 0.0 && gx < w && gy < h)
-            || near_line(gx)
-            || near_line(gy)
-            || map.cell_occupied(gx as i64, gy as i64)
-            || !self.tmax.iter().all(|t| t.is_finite())
-        {
-            return false;
-        }
         for (g, m) in self.group_max.iter_mut().enumerate() {
             *m = self.best[g * GROUP..((g + 1) * GROUP).min(n)]
                 .iter()
@@ -237,7 +249,6 @@ impl Sweep {
         }
         self.swept += 1;
         self.handed += self.marched.len() as u64;
-        true
     }
 
     /// The blocks ring by ring from the origin's block outwards.
@@ -667,14 +678,6 @@ unsafe fn corner_angles_avx(fan: &Fan, gx: f64, gy: f64, x: [f64; 4], y: [f64; 4
     // SAFETY: `out` holds four values; the CPU has AVX (this function's contract).
     unsafe { _mm256_storeu_pd(out.as_mut_ptr(), atan2_avx(v, u)) };
     out
-}
-
-/// The range in metres of a beam whose hit parameter is `cells` (infinity: none) and
-/// whose limit is `limit` metres, as the march's scan computes it.
-#[inline(always)]
-pub(super) fn metres(cells: f64, res: f64, limit: f64) -> f64 {
-    let r = cells * res;
-    if r < limit { r } else { limit }
 }
 
 /// One run as its crossings need it: the distance across to its line, the origin's
