@@ -51,54 +51,23 @@ impl WallFaces {
         let mut runs: Vec<(usize, u32, u32, u32)> = Vec::new();
         let key = |bx: usize, by: usize, side: usize| 4 * (by * blocks_x + bx) + side;
         // Vertical faces on the inner lines x = 1 .. width - 1 (the map's outer border
-        // cannot be reached from inside it), runs along y.
-        for x in 1..width {
-            let mut r = 0;
-            while r < height {
-                let (left, right) = (occ(x - 1, r), occ(x, r));
-                if left == right {
-                    r += 1;
-                    continue;
-                }
-                let side = if right { PLUS_X } else { MINUS_X };
-                let bx = if right { x } else { x - 1 } / BLOCK;
-                let start = r;
-                let block_end = (r / BLOCK + 1) * BLOCK;
-                while r < height && r < block_end && occ(x - 1, r) == left && occ(x, r) == right {
-                    r += 1;
-                }
-                runs.push((
-                    key(bx, start / BLOCK, side),
-                    x as u32,
-                    start as u32,
-                    r as u32,
-                ));
-            }
-        }
-        // Horizontal faces on the lines y = 1 .. height - 1, runs along x.
-        for y in 1..height {
-            let mut c = 0;
-            while c < width {
-                let (below, above) = (occ(c, y - 1), occ(c, y));
-                if below == above {
-                    c += 1;
-                    continue;
-                }
-                let side = if above { PLUS_Y } else { MINUS_Y };
-                let by = if above { y } else { y - 1 } / BLOCK;
-                let start = c;
-                let block_end = (c / BLOCK + 1) * BLOCK;
-                while c < width && c < block_end && occ(c, y - 1) == below && occ(c, y) == above {
-                    c += 1;
-                }
-                runs.push((
-                    key(start / BLOCK, by, side),
-                    y as u32,
-                    start as u32,
-                    c as u32,
-                ));
-            }
-        }
+        // cannot be reached from inside it), runs along y; then horizontal faces on the
+        // lines y = 1 .. height - 1, runs along x.
+        for_line_runs(width, height, occ, |x, occupied_after, r0, r1| {
+            let side = if occupied_after { PLUS_X } else { MINUS_X };
+            let bx = if occupied_after { x } else { x - 1 } / BLOCK;
+            runs.push((key(bx, r0 / BLOCK, side), x as u32, r0 as u32, r1 as u32));
+        });
+        for_line_runs(
+            height,
+            width,
+            |y, c| occ(c, y),
+            |y, occupied_after, c0, c1| {
+                let side = if occupied_after { PLUS_Y } else { MINUS_Y };
+                let by = if occupied_after { y } else { y - 1 } / BLOCK;
+                runs.push((key(c0 / BLOCK, by, side), y as u32, c0 as u32, c1 as u32));
+            },
+        );
         if runs.len() >= u32::MAX as usize {
             return None;
         }
@@ -151,6 +120,35 @@ impl WallFaces {
     pub(crate) fn block_empty(&self, bx: usize, by: usize) -> bool {
         let k = 4 * (by * self.blocks_x + bx);
         self.start[k] == self.start[k + 4]
+    }
+}
+
+/// The face runs on the grid lines `1..lines` across a grid `lines` cells across and
+/// `len` along: `occ(i, k)` is the occupancy of cell `k` along, `i` across; a face lies
+/// on line `i` where cells `i - 1` and `i` differ. Each run of faces alike (the same side
+/// occupied) within one block along goes to `run(i, occupied_after, k0, k1)`: line `i`,
+/// whether cell `i` is the occupied one, cells `k0..k1` along.
+fn for_line_runs(
+    lines: usize,
+    len: usize,
+    occ: impl Fn(usize, usize) -> bool,
+    mut run: impl FnMut(usize, bool, usize, usize),
+) {
+    for i in 1..lines {
+        let mut k = 0;
+        while k < len {
+            let (before, after) = (occ(i - 1, k), occ(i, k));
+            if before == after {
+                k += 1;
+                continue;
+            }
+            let start = k;
+            let block_end = (k / BLOCK + 1) * BLOCK;
+            while k < len && k < block_end && occ(i - 1, k) == before && occ(i, k) == after {
+                k += 1;
+            }
+            run(i, after, start, k);
+        }
     }
 }
 
