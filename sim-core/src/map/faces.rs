@@ -109,14 +109,14 @@ impl WallFaces {
     }
 
     /// The runs of block (bx, by) facing `side`, as a range of run indices.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn runs(&self, bx: usize, by: usize, side: usize) -> std::ops::Range<usize> {
         let k = 4 * (by * self.blocks_x + bx) + side;
         self.start[k] as usize..self.start[k + 1] as usize
     }
 
     /// Whether block (bx, by) has no faces.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn block_empty(&self, bx: usize, by: usize) -> bool {
         let k = 4 * (by * self.blocks_x + bx);
         self.start[k] == self.start[k + 4]

@@ -338,8 +338,8 @@ impl Sweep {
         let (x1, y1) = (x0 + BLOCK as f64, y0 + BLOCK as f64);
         let ex = (x0 - gx).max(gx - x1).max(0.0);
         let ey = (y0 - gy).max(gy - y1).max(0.0);
-        let dmin = libm::sqrt(ex * ex + ey * ey) * (1.0 - 1e-9) - EPS;
-        if dmin > reach {
+        let d2 = ex * ex + ey * ey;
+        if beyond(d2, reach) {
             return;
         }
         // First its group of blocks, once per ring: far blocks are mostly culled whole
@@ -355,14 +355,17 @@ impl Sweep {
             let (sx1, sy1) = (sx0 + side, sy0 + side);
             let sex = (sx0 - gx).max(gx - sx1).max(0.0);
             let sey = (sy0 - gy).max(gy - sy1).max(0.0);
-            let sdmin = libm::sqrt(sex * sex + sey * sey) * (1.0 - 1e-9) - EPS;
-            if sdmin > self.seen::<AVX>(fan, gx, gy, [sx0, sy0, sx1, sy1], sex, sey) {
+            let sd2 = sex * sex + sey * sey;
+            if beyond(
+                sd2,
+                self.seen::<AVX>(fan, gx, gy, [sx0, sy0, sx1, sy1], sex, sey),
+            ) {
                 self.super_dead[si] = self.serial;
                 return;
             }
         }
         let far = self.seen::<AVX>(fan, gx, gy, [x0, y0, x1, y1], ex, ey);
-        if dmin > far {
+        if beyond(d2, far) {
             return;
         }
         let n = self.tmax.len();
@@ -444,8 +447,12 @@ impl Sweep {
         }
         let n = self.tmax.len();
         // Each run's beams: between its two ends' directions, with slack.
-        self.first.resize(m + LANES - 1, 0.0);
-        self.last.resize(m + LANES - 1, 0.0);
+        // (Grown only: a call to resize per block side cost more than its work on the
+        // blocks with few runs.)
+        if self.first.len() < m + LANES - 1 {
+            self.first.resize(m + LANES - 1, 0.0);
+            self.last.resize(m + LANES - 1, 0.0);
+        }
         // The runs, and three more (padding or other runs) to read four at a time.
         let more = runs.start..runs.end + LANES - 1;
         let (line, los, his) = (
@@ -537,6 +544,16 @@ impl Sweep {
     }
 }
 
+/// Whether a box whose nearest point lies at squared distance `d2` (cells) from the origin
+/// is beyond every range up to `reach`, with a margin for rounding. By squares: a square
+/// root per block visited was a fifth of a scan's time on fine maps (its latency, on the
+/// ring walk's critical path).
+#[inline(always)]
+fn beyond(d2: f64, reach: f64) -> bool {
+    let r = (reach + EPS) * (1.0 + 2e-9);
+    d2 > r * r
+}
+
 /// One run as its crossings need it: the distance across to its line, the origin's
 /// coordinate along it, and its extent along it widened and narrowed by [`EPS`].
 struct Run {
@@ -615,17 +632,6 @@ fn beams_seeing<const AVX: bool>(
     }
     let lo = angle[0].min(angle[1]).min(angle[2].min(angle[3]));
     let hi = angle[0].max(angle[1]).max(angle[2].max(angle[3]));
-    let slack = ANGLE_SLACK * fan.inv_inc;
-    let top = (n - 1) as f64;
-    let beams = |a: f64, z: f64| {
-        let first = ((a + fan.half_fov) * fan.inv_inc - slack).ceil().max(0.0);
-        let last = ((z + fan.half_fov) * fan.inv_inc + slack).floor().min(top);
-        if first <= last {
-            first as usize..last as usize + 1
-        } else {
-            0..0
-        }
-    };
     if hi - lo > PI {
         // A box seen from outside spans less than a half turn: this one spans the
         // direction straight behind. Measured from 0 to 2 pi its span is one interval.
@@ -637,9 +643,28 @@ fn beams_seeing<const AVX: bool>(
             turn(angle[3]),
         );
         let (lo, hi) = (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)));
-        [beams(lo, PI), beams(-PI, hi - 2.0 * PI)]
+        [
+            beams_between(fan, n, lo, PI),
+            beams_between(fan, n, -PI, hi - 2.0 * PI),
+        ]
     } else {
-        [beams(lo, hi), 0..0]
+        [beams_between(fan, n, lo, hi), 0..0]
+    }
+}
+
+/// The beams of a fan of `n` whose directions lie between `a` and `z` (radians from the
+/// heading), with [`ANGLE_SLACK`] to spare on each side. Inlined, not a closure: the
+/// compiler kept a closure out of line and compiled it without AVX.
+#[inline(always)]
+fn beams_between(fan: &Fan, n: usize, a: f64, z: f64) -> std::ops::Range<usize> {
+    let slack = ANGLE_SLACK * fan.inv_inc;
+    let top = (n - 1) as f64;
+    let first = ((a + fan.half_fov) * fan.inv_inc - slack).ceil().max(0.0);
+    let last = ((z + fan.half_fov) * fan.inv_inc + slack).floor().min(top);
+    if first <= last {
+        first as usize..last as usize + 1
+    } else {
+        0..0
     }
 }
 
