@@ -166,7 +166,8 @@ unsafe fn angles(fan: &Fan, vx: __m256d, vy: __m256d) -> __m256d {
 /// `Sweep::cross`'s crossings with AVX: for each run (line, lo, hi) its beams
 /// `first..=last` (none when last < first), four per instruction with the same operations
 /// lane by lane as [`Run::cross`], so the same bits; each run's groups of beams marked in
-/// `dirty`. A run within two lanes of beams (most are) takes exactly two, whatever its
+/// `dirty`. Returns whether any beam was flagged (rare: set lane by lane behind a branch,
+/// not by a load and a store per lane). A run within two lanes of beams (most are) takes exactly two, whatever its
 /// span: the extra beams cannot cross it, and no loop exit is mispredicted.
 ///
 /// # Safety
@@ -187,7 +188,7 @@ pub(super) unsafe fn cross_runs(
     best: &mut [f64],
     flag: &mut [f64],
     dirty: &mut [u64],
-) {
+) -> bool {
     let m = first
         .len()
         .min(last.len())
@@ -195,7 +196,8 @@ pub(super) unsafe fn cross_runs(
         .min(los.len())
         .min(his.len());
     let n = inv.len().min(along.len()).min(best.len()).min(flag.len());
-    let (zero, one) = (_mm256_setzero_pd(), _mm256_set1_pd(1.0));
+    let zero = _mm256_setzero_pd();
+    let mut flagged = false;
     let inf = _mm256_set1_pd(f64::INFINITY);
     let g = _mm256_set1_pd(g_along);
     let half = m.div_ceil(2);
@@ -256,9 +258,15 @@ pub(super) unsafe fn cross_runs(
                 // stalls the next run's loads.
                 let tm = _mm256_blendv_pd(inf, t, hit);
                 _mm256_storeu_pd(best.as_mut_ptr().add(i), _mm256_min_pd(b, tm));
-                let f = _mm256_loadu_pd(flag.as_ptr().add(i));
-                let set = _mm256_and_pd(_mm256_and_pd(hit, near), one);
-                _mm256_storeu_pd(flag.as_mut_ptr().add(i), _mm256_or_pd(f, set));
+                let set = _mm256_movemask_pd(_mm256_and_pd(hit, near));
+                if set != 0 {
+                    flagged = true;
+                    for l in 0..LANES {
+                        if set & (1 << l) != 0 {
+                            flag[i + l] = 1.0;
+                        }
+                    }
+                }
             }
             i += LANES;
         }
@@ -266,4 +274,5 @@ pub(super) unsafe fn cross_runs(
     for (w, word) in dirty.iter_mut().take(2).enumerate() {
         *word |= (marks >> (64 * w)) as u64;
     }
+    flagged
 }

@@ -54,8 +54,11 @@ pub(super) struct Sweep {
     inv_dy: Vec<f64>,
     /// The least crossing so far (starts beyond `tmax`).
     best: Vec<f64>,
-    /// Non-zero: a crossing near a run end; the march decides this beam.
+    /// Non-zero: a crossing near a run end; the march decides this beam. All zero between
+    /// scans (a scan clears the few it set), so a scan sets it only where it flags.
     flag: Vec<f64>,
+    /// Whether this scan has flagged any beam.
+    flagged: bool,
     /// Per group of [`GROUP`] beams, the largest `best`, and a bit set of the groups a
     /// crossing test may have lowered since.
     group_max: Vec<f64>,
@@ -190,11 +193,7 @@ impl Sweep {
         let (beam_cos, beam_sin, limit) = (&beam_cos[..n], &beam_sin[..n], &self.limit[..n]);
         let (dxs, dys) = (&mut self.dx[..n], &mut self.dy[..n]);
         let (inv_dx, inv_dy) = (&mut self.inv_dx[..n], &mut self.inv_dy[..n]);
-        let (tmax, best, flag) = (
-            &mut self.tmax[..n],
-            &mut self.best[..n],
-            &mut self.flag[..n],
-        );
+        let (tmax, best) = (&mut self.tmax[..n], &mut self.best[..n]);
         for j in 0..n {
             let (bc, bs) = (beam_cos[j], beam_sin[j]);
             // As the march prepares them: -0.0 would give an inverse of -infinity.
@@ -210,7 +209,6 @@ impl Sweep {
             tmax[j] = t;
             // Any start beyond tmax will do (a crossing beyond it is no hit).
             best[j] = t + 1.0;
-            flag[j] = 0.0;
         }
     }
 
@@ -241,6 +239,7 @@ impl Sweep {
             self.super_tested.resize(supers, 0);
         }
         self.serial += 1;
+        self.flagged = false;
         self.sweep::<AVX>(faces, gx, gy, fan);
         let (best, tmax, limit) = (&self.best[..n], &self.tmax[..n], &self.limit[..n]);
         for i in 0..n {
@@ -254,9 +253,13 @@ impl Sweep {
                 limit[i],
             );
         }
-        if self.flag[..n].iter().any(|&f| f != 0.0) {
-            let flagged = (0..n as u32).filter(|&i| self.flag[i as usize] != 0.0);
-            self.marched.extend(flagged);
+        if self.flagged {
+            for (i, f) in self.flag[..n].iter_mut().enumerate() {
+                if *f != 0.0 {
+                    self.marched.push(i as u32);
+                    *f = 0.0;
+                }
+            }
         }
         self.swept += 1;
         self.handed += self.marched.len() as u64;
@@ -522,7 +525,7 @@ impl Sweep {
         if AVX {
             let (first, last) = (&first[..m], &last[..m]);
             // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
-            unsafe {
+            self.flagged |= unsafe {
                 avx::cross_runs(
                     line, los, his, first, last, g_line, g_along, inv, along, best, flag, dirty,
                 )
@@ -539,7 +542,7 @@ impl Sweep {
             }
             let run = Run::new(line[j], los[j], his[j], g_line, g_along);
             let (from, to) = (b0 & !(LANES - 1), (b1 + 1).next_multiple_of(LANES));
-            run.cross(inv, along, best, flag, from, to);
+            self.flagged |= run.cross(inv, along, best, flag, from, to);
         }
     }
 }
@@ -583,7 +586,7 @@ impl Run {
 
     /// Crosses the run with beams `from..to`: a beam whose crossing lies on the run (to
     /// within [`EPS`]) and before its best so far takes it; one within [`EPS`] of an end
-    /// is flagged.
+    /// is flagged. Returns whether any was.
     #[inline(always)]
     fn cross(
         &self,
@@ -593,7 +596,8 @@ impl Run {
         flag: &mut [f64],
         from: usize,
         to: usize,
-    ) {
+    ) -> bool {
+        let mut flagged = false;
         for i in from..to {
             let t = self.dl * inv[i];
             let y = self.g_along + t * along[i];
@@ -603,7 +607,9 @@ impl Run {
             let tm = if hit { t } else { f64::INFINITY };
             best[i] = if best[i] < tm { best[i] } else { tm };
             flag[i] = if hit & near { 1.0 } else { flag[i] };
+            flagged |= hit & near;
         }
+        flagged
     }
 }
 
