@@ -5,14 +5,53 @@
 use std::arch::x86_64::*;
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
-use super::{ANGLE_SLACK, EPS, Fan, GROUP, LANES, Run};
+use super::{ANGLE_SLACK, EPS, Fan, LANES};
 
-/// `Sweep::cross`'s first and last beam of the runs, four at a time (each run's two ends'
-/// directions by `atan2_fast`'s operations): of all of them if the arrays' length is a
-/// multiple of four, else of all but the last `len % 4`, which only pad.
+/// What [`cross_runs`] needs of each run of a block side, computed four runs at a time by
+/// [`beams_of_runs`]: its beams as whole lanes `from..to` (at least two lanes) and the
+/// run as [`super::Run`] holds it (`dl` is 0 for a run with no beams: its lanes then cross
+/// nothing).
+#[derive(Default)]
+pub(super) struct Runs {
+    from: Vec<i32>,
+    to: Vec<i32>,
+    dl: Vec<f64>,
+    lo_out: Vec<f64>,
+    hi_out: Vec<f64>,
+    lo_in: Vec<f64>,
+    hi_in: Vec<f64>,
+}
+
+impl Runs {
+    /// Room for `m` runs and the three that pad the last four (grown only: a call to
+    /// resize per block side cost more than the work on blocks with few runs).
+    #[inline(always)]
+    pub(super) fn reserve(&mut self, m: usize) {
+        let len = m + LANES - 1;
+        if self.from.len() < len {
+            self.from.resize(len, 0);
+            self.to.resize(len, 0);
+            for v in [
+                &mut self.dl,
+                &mut self.lo_out,
+                &mut self.hi_out,
+                &mut self.lo_in,
+                &mut self.hi_in,
+            ] {
+                v.resize(len, 0.0);
+            }
+        }
+    }
+}
+
+/// `Sweep::cross`'s beams of the first `m` runs `(line, lo, hi)`, four at a time (each
+/// run's two ends' directions by `atan2_fast`'s operations), into `runs` with the
+/// run's own values as [`super::Run::new`] computes them. Returns the least first and the
+/// greatest last beam of the runs that have beams, if any.
 ///
 /// # Safety
-/// The CPU must support AVX.
+/// The CPU must support AVX; the slices hold `m` rounded up to a multiple of four runs
+/// (`runs` reserved for `m`).
 #[target_feature(enable = "avx")]
 #[allow(clippy::too_many_arguments)]
 #[inline]
@@ -20,20 +59,21 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
     line: &[f32],
     los: &[f32],
     his: &[f32],
+    m: usize,
     g_line: f64,
     g_along: f64,
     fan: &Fan,
     far: f64,
     top: f64,
-    first: &mut [f64],
-    last: &mut [f64],
-) {
-    let m = line
+    runs: &mut Runs,
+) -> Option<(usize, usize)> {
+    let len = line
         .len()
         .min(los.len())
         .min(his.len())
-        .min(first.len())
-        .min(last.len());
+        .min(runs.from.len())
+        .min(runs.hi_in.len());
+    assert!(m.next_multiple_of(LANES) <= len, "{m} runs of {len}");
     let set = _mm256_set1_pd;
     let sign = set(-0.0);
     let index = |vx: __m256d, vy: __m256d| -> __m256d {
@@ -44,13 +84,17 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
     let slack = set(ANGLE_SLACK * fan.inv_inc);
     let wrap = set(PI * fan.inv_inc);
     let cull = set(far);
+    let lanes = set(LANES as f64);
+    let quarter = set(1.0 / LANES as f64);
+    let (mut least, mut most) = (set(f64::INFINITY), set(-1.0));
     let mut j = 0;
-    while j + LANES <= m {
-        // SAFETY: j + 4 <= m, within every array.
+    while j < m {
+        // SAFETY: j + 4 <= len, within every array.
         let load = |a: &[f32]| unsafe { _mm256_cvtps_pd(_mm_loadu_ps(a.as_ptr().add(j))) };
-        let across = _mm256_sub_pd(load(line), set(g_line));
-        let a0 = _mm256_sub_pd(load(los), set(g_along));
-        let a1 = _mm256_sub_pd(load(his), set(g_along));
+        let (line, lo, hi) = (load(line), load(los), load(his));
+        let across = _mm256_sub_pd(line, set(g_line));
+        let a0 = _mm256_sub_pd(lo, set(g_along));
+        let a1 = _mm256_sub_pd(hi, set(g_along));
         let (i0, i1) = if VERTICAL {
             (index(across, a0), index(across, a1))
         } else {
@@ -66,14 +110,56 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
             _mm256_mul_pd(_mm256_andnot_pd(sign, across), set(1.0 - 1e-9)),
             set(EPS),
         );
-        let b = _mm256_blendv_pd(b, set(-1.0), _mm256_cmp_pd::<_CMP_GT_OQ>(dist, cull));
+        // Live: not farther than any beam's range, has beams, and one of the m runs
+        // (the lanes past m pad).
+        let index = _mm256_add_pd(set(j as f64), _mm256_set_pd(3.0, 2.0, 1.0, 0.0));
+        let live = _mm256_and_pd(
+            _mm256_and_pd(
+                _mm256_cmp_pd::<_CMP_LE_OQ>(dist, cull),
+                _mm256_cmp_pd::<_CMP_LE_OQ>(a, b),
+            ),
+            _mm256_cmp_pd::<_CMP_LT_OQ>(index, set(m as f64)),
+        );
+        least = _mm256_min_pd(least, _mm256_blendv_pd(set(f64::INFINITY), a, live));
+        most = _mm256_max_pd(most, _mm256_blendv_pd(set(-1.0), b, live));
+        // Whole lanes: from the lane of the first beam to past the lane of the last, at
+        // least two lanes (so that no loop exit is mispredicted); beams 0..8 for a run
+        // with no beams.
+        let from = _mm256_mul_pd(_mm256_floor_pd(_mm256_mul_pd(a, quarter)), lanes);
+        let to = _mm256_mul_pd(
+            _mm256_ceil_pd(_mm256_mul_pd(_mm256_add_pd(b, set(1.0)), quarter)),
+            lanes,
+        );
+        let to = _mm256_max_pd(to, _mm256_add_pd(from, set(2.0 * LANES as f64)));
+        let from = _mm256_and_pd(from, live);
+        let to = _mm256_blendv_pd(set(2.0 * LANES as f64), to, live);
         // SAFETY: as above.
         unsafe {
-            _mm256_storeu_pd(first.as_mut_ptr().add(j), a);
-            _mm256_storeu_pd(last.as_mut_ptr().add(j), b);
+            let at = |v: &mut Vec<f64>| v.as_mut_ptr().add(j);
+            _mm_storeu_si128(
+                runs.from.as_mut_ptr().add(j).cast(),
+                _mm256_cvttpd_epi32(from),
+            );
+            _mm_storeu_si128(runs.to.as_mut_ptr().add(j).cast(), _mm256_cvttpd_epi32(to));
+            _mm256_storeu_pd(at(&mut runs.dl), _mm256_and_pd(across, live));
+            _mm256_storeu_pd(at(&mut runs.lo_out), _mm256_sub_pd(lo, set(EPS)));
+            _mm256_storeu_pd(at(&mut runs.hi_out), _mm256_add_pd(hi, set(EPS)));
+            _mm256_storeu_pd(at(&mut runs.lo_in), _mm256_add_pd(lo, set(EPS)));
+            _mm256_storeu_pd(at(&mut runs.hi_in), _mm256_sub_pd(hi, set(EPS)));
         }
         j += LANES;
     }
+    let (mut l, mut h) = ([0.0; 4], [0.0; 4]);
+    // SAFETY: four values each.
+    unsafe {
+        _mm256_storeu_pd(l.as_mut_ptr(), least);
+        _mm256_storeu_pd(h.as_mut_ptr(), most);
+    }
+    let (l, h) = (
+        l[0].min(l[1]).min(l[2].min(l[3])),
+        h[0].max(h[1]).max(h[2].max(h[3])),
+    );
+    (l <= h).then_some((l as usize, h as usize))
 }
 
 /// `atan2_fast` on four lanes (the same operations, but y = -0.0 gives +pi where
@@ -163,78 +249,46 @@ unsafe fn angles(fan: &Fan, vx: __m256d, vy: __m256d) -> __m256d {
     unsafe { atan2(v, u) }
 }
 
-/// `Sweep::cross`'s crossings with AVX: for each run (line, lo, hi) its beams
-/// `first..=last` (none when last < first), four per instruction with the same operations
-/// lane by lane as [`Run::cross`], so the same bits; each run's groups of beams marked in
-/// `dirty`. Returns whether any beam was flagged (rare: set lane by lane behind a branch,
-/// not by a load and a store per lane). A run within two lanes of beams (most are) takes exactly two, whatever its
-/// span: the extra beams cannot cross it, and no loop exit is mispredicted.
+/// `Sweep::cross`'s crossings with AVX: each of the first `m` runs of `runs` (see
+/// [`beams_of_runs`]) with its lanes of beams, four beams per instruction with the same
+/// operations lane by lane as [`super::Run::cross`], so the same bits. Returns whether any beam
+/// was flagged (rare: set lane by lane behind a branch, not by a load and a store per
+/// lane).
 ///
 /// # Safety
 /// The CPU must support AVX.
 #[target_feature(enable = "avx")]
-#[allow(clippy::too_many_arguments)]
 #[inline]
 pub(super) unsafe fn cross_runs(
-    line: &[f32],
-    los: &[f32],
-    his: &[f32],
-    first: &[f64],
-    last: &[f64],
-    g_line: f64,
+    runs: &Runs,
+    m: usize,
     g_along: f64,
     inv: &[f64],
     along: &[f64],
     best: &mut [f64],
     flag: &mut [f64],
-    dirty: &mut [u64],
 ) -> bool {
-    let m = first
-        .len()
-        .min(last.len())
-        .min(line.len())
-        .min(los.len())
-        .min(his.len());
     let n = inv.len().min(along.len()).min(best.len()).min(flag.len());
+    let (from, to) = (&runs.from[..m], &runs.to[..m]);
+    let (dl, lo_out, hi_out) = (&runs.dl[..m], &runs.lo_out[..m], &runs.hi_out[..m]);
+    let (lo_in, hi_in) = (&runs.lo_in[..m], &runs.hi_in[..m]);
     let zero = _mm256_setzero_pd();
     let mut flagged = false;
     let inf = _mm256_set1_pd(f64::INFINITY);
     let g = _mm256_set1_pd(g_along);
     let half = m.div_ceil(2);
-    // The groups of beams 0..2048 to mark dirty.
-    let mut marks = 0u128;
     for k in 0..m {
         // Runs from the two halves in turn: neighbouring runs (along a line) share beams,
         // and updating the same beams in a row would wait on each other's stores.
         let j = if k % 2 == 0 { k / 2 } else { half + k / 2 };
-        let live = first[j] <= last[j];
-        // A run with no beams is crossed, harmlessly, with beams 0..8 at a distance of 0
-        // (t = 0: no crossing).
-        let (b0, b1) = if live {
-            (first[j] as usize, last[j] as usize)
-        } else {
-            (0, 0)
-        };
-        let run = Run::new(line[j], los[j], his[j], g_line, g_along);
-        let dl = _mm256_set1_pd(if live { run.dl } else { 0.0 });
-        let (lo_out, hi_out) = (_mm256_set1_pd(run.lo_out), _mm256_set1_pd(run.hi_out));
-        let (lo_in, hi_in) = (_mm256_set1_pd(run.lo_in), _mm256_set1_pd(run.hi_in));
-        let from = b0 & !(LANES - 1);
-        let to = (b1 + 1).next_multiple_of(LANES).max(from + 2 * LANES);
-        assert!(to <= n, "beams {from}..{to} of {n}");
-        let (g0, g1) = (b0 / GROUP, b1 / GROUP);
-        if g1 < 128 {
-            // In registers (a store per run would chain the runs on their stores).
-            let bits = (u128::MAX >> (127 - g1)) & (u128::MAX << g0);
-            marks |= if live { bits } else { 0 };
-        } else if live {
-            for gm in g0..=g1 {
-                dirty[gm / 64] |= 1 << (gm % 64);
-            }
-        }
-        let mut i = from;
-        while i < to {
-            // SAFETY: i + 4 <= to <= the length of every array.
+        let (start, end) = (from[j] as usize, to[j] as usize);
+        assert!(end <= n, "beams {start}..{end} of {n}");
+        let dl = _mm256_set1_pd(dl[j]);
+        let (lo_out, hi_out) = (_mm256_set1_pd(lo_out[j]), _mm256_set1_pd(hi_out[j]));
+        let (lo_in, hi_in) = (_mm256_set1_pd(lo_in[j]), _mm256_set1_pd(hi_in[j]));
+        let mut i = start;
+        while i < end {
+            // SAFETY: i + 4 <= end <= the length of every array.
             unsafe {
                 let t = _mm256_mul_pd(dl, _mm256_loadu_pd(inv.as_ptr().add(i)));
                 let y = _mm256_add_pd(g, _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))));
@@ -270,9 +324,6 @@ pub(super) unsafe fn cross_runs(
             }
             i += LANES;
         }
-    }
-    for (w, word) in dirty.iter_mut().take(2).enumerate() {
-        *word |= (marks >> (64 * w)) as u64;
     }
     flagged
 }

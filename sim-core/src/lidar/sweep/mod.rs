@@ -73,9 +73,12 @@ pub(super) struct Sweep {
     stamp: u64,
     /// The range limit of each beam in metres (the caller's scratch).
     pub limit: Vec<f64>,
-    /// Per run of the block side being crossed: its first and last beam.
+    /// Per run of the block side being crossed: its first and last beam (portable code),
+    /// and what the AVX crossings need of it.
     first: Vec<f64>,
     last: Vec<f64>,
+    #[cfg(target_arch = "x86_64")]
+    runs: avx::Runs,
     /// The beams [`Sweep::run`] leaves to the march.
     pub marched: Vec<u32>,
     /// Scans swept and beams left to the march since this thread's first (for tests).
@@ -449,13 +452,6 @@ impl Sweep {
             return;
         }
         let n = self.tmax.len();
-        // Each run's beams: between its two ends' directions, with slack.
-        // (Grown only: a call to resize per block side cost more than its work on the
-        // blocks with few runs.)
-        if self.first.len() < m + LANES - 1 {
-            self.first.resize(m + LANES - 1, 0.0);
-            self.last.resize(m + LANES - 1, 0.0);
-        }
         // The runs, and three more (padding or other runs) to read four at a time.
         let more = runs.start..runs.end + LANES - 1;
         let (line, los, his) = (
@@ -463,21 +459,59 @@ impl Sweep {
             &faces.lo[more.clone()],
             &faces.hi[more],
         );
+        let top = (n - 1) as f64;
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            self.runs.reserve(m);
+            let (inv, along) = if VERTICAL {
+                (&self.inv_dx[..], &self.dy[..])
+            } else {
+                (&self.inv_dy[..], &self.dx[..])
+            };
+            // SAFETY: `AVX` is set only by callers that checked the CPU has AVX; the
+            // slices hold m + 3 runs and `runs` is reserved for m.
+            unsafe {
+                let span = avx::beams_of_runs::<VERTICAL>(
+                    line,
+                    los,
+                    his,
+                    m,
+                    g_line,
+                    g_along,
+                    fan,
+                    far,
+                    top,
+                    &mut self.runs,
+                );
+                let Some((b0, b1)) = span else { return };
+                // The groups of every beam any run may lower (a group marked without
+                // need is only measured again).
+                for g in b0 / GROUP..=b1 / GROUP {
+                    self.dirty[g / 64] |= 1 << (g % 64);
+                }
+                self.flagged |= avx::cross_runs(
+                    &self.runs,
+                    m,
+                    g_along,
+                    inv,
+                    along,
+                    &mut self.best,
+                    &mut self.flag,
+                );
+            }
+            return;
+        }
+        // Each run's beams: between its two ends' directions, with slack.
+        // (Grown only: a call to resize per block side cost more than its work on the
+        // blocks with few runs.)
+        if self.first.len() < m {
+            self.first.resize(m, 0.0);
+            self.last.resize(m, 0.0);
+        }
         let (first, last) = (&mut self.first[..], &mut self.last[..]);
         let slack = ANGLE_SLACK * fan.inv_inc;
         let wrap = PI * fan.inv_inc;
-        let top = (n - 1) as f64;
         let mut j = 0;
-        #[cfg(target_arch = "x86_64")]
-        if AVX {
-            j = m;
-            // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
-            unsafe {
-                avx::beams_of_runs::<VERTICAL>(
-                    line, los, his, g_line, g_along, fan, far, top, first, last,
-                )
-            };
-        }
         while j < m {
             let across = f64::from(line[j]) - g_line;
             let a0 = f64::from(los[j]) - g_along;
@@ -521,17 +555,6 @@ impl Sweep {
         let best = &mut self.best[..];
         let flag = &mut self.flag[..];
         let dirty = &mut self.dirty[..];
-        #[cfg(target_arch = "x86_64")]
-        if AVX {
-            let (first, last) = (&first[..m], &last[..m]);
-            // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
-            self.flagged |= unsafe {
-                avx::cross_runs(
-                    line, los, his, first, last, g_line, g_along, inv, along, best, flag, dirty,
-                )
-            };
-            return;
-        }
         for j in 0..m {
             if first[j] > last[j] {
                 continue;
