@@ -232,9 +232,7 @@ impl Sweep {
         let n = self.tmax.len();
         self.marched.clear();
         for (g, m) in self.group_max.iter_mut().enumerate() {
-            *m = self.best[g * GROUP..((g + 1) * GROUP).min(n)]
-                .iter()
-                .fold(0.0, |a, &b| if b > a { b } else { a });
+            *m = max_of(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
         }
         let supers = faces.blocks_x.div_ceil(SUPER) * faces.blocks_y.div_ceil(SUPER);
         if self.super_dead.len() < supers {
@@ -318,9 +316,7 @@ impl Sweep {
 
     /// The largest current range of any beam.
     fn reach(&self) -> f64 {
-        self.group_max
-            .iter()
-            .fold(0.0, |a, &b| if b > a { b } else { a })
+        max_of(0.0, &self.group_max)
     }
 
     /// One block: culled by distance, then its runs crossed with the beams that can see
@@ -392,9 +388,7 @@ impl Sweep {
             while bits != 0 {
                 let g = 64 * w + bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                self.group_max[g] = self.best[g * GROUP..((g + 1) * GROUP).min(n)]
-                    .iter()
-                    .fold(0.0, |a, &b| if b > a { b } else { a });
+                self.group_max[g] = max_of(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
             }
         }
     }
@@ -425,9 +419,7 @@ impl Sweep {
                 continue;
             }
             let (g0, g1) = (beams.start / GROUP, (beams.end - 1) / GROUP);
-            far = self.group_max[g0..=g1]
-                .iter()
-                .fold(far, |a, &b| if b > a { b } else { a });
+            far = max_of(far, &self.group_max[g0..=g1]);
         }
         far
     }
@@ -568,6 +560,23 @@ impl Sweep {
             self.flagged |= run.cross(inv, along, best, flag, from, to);
         }
     }
+}
+
+/// The largest of `start` and `v` (none of them NaN), four lanes at a time: a fold one by
+/// one is a chain of dependent maxima, which the compiler keeps (it may not reorder a
+/// floating-point fold), and the culling maxima are measured after every block.
+#[inline(always)]
+fn max_of(start: f64, v: &[f64]) -> f64 {
+    let max = |a: f64, b: f64| if b > a { b } else { a };
+    let mut lanes = [start; 4];
+    let mut quads = v.chunks_exact(4);
+    for q in &mut quads {
+        for k in 0..4 {
+            lanes[k] = max(lanes[k], q[k]);
+        }
+    }
+    let tail = quads.remainder().iter().fold(start, |a, &b| max(a, b));
+    max(max(lanes[0], lanes[1]), max(max(lanes[2], lanes[3]), tail))
 }
 
 /// Whether a box whose nearest point lies at squared distance `d2` (cells) from the origin
