@@ -9,8 +9,9 @@
 //! the line; runs are cut at block borders, so each run lies inside its block (the block
 //! of its occupied cells), and a block's runs are stored together per side.
 
-/// Cells per side of a block.
-pub(crate) const BLOCK: usize = 32;
+/// Cells per side of a block. 64 rather than 32: fewer blocks to walk and cull per scan
+/// for a few more runs to cross (measured on the sweep, docs/performance-scan.md).
+pub(crate) const BLOCK: usize = 64;
 
 /// The side a face faces, as the index of its runs within a block: the face is met by
 /// rays going +x (`PLUS_X`: occupied cell on the larger-x side), -x, +y or -y.
@@ -176,12 +177,14 @@ mod tests {
 
     #[test]
     fn runs_merge_along_a_wall_and_are_cut_at_block_borders() {
-        // A wall along column 5 of a 10 x 70 grid: one +x and one -x run per block row.
-        let (w, h) = (10, 70);
+        // A wall along column 5 of a grid 10 wide and two blocks and 6 cells high: one +x
+        // and one -x run per block row.
+        let (w, h) = (10, 2 * BLOCK + 6);
         let occ: Vec<bool> = (0..w * h).map(|i| i % w == 5).collect();
         let f = WallFaces::new(w, h, &occ).unwrap();
         assert_eq!((f.blocks_x, f.blocks_y), (1, 3));
-        for (by, (lo, hi)) in [(0.0, 32.0), (32.0, 64.0), (64.0, 70.0)]
+        let b = BLOCK as f32;
+        for (by, (lo, hi)) in [(0.0, b), (b, 2.0 * b), (2.0 * b, h as f32)]
             .into_iter()
             .enumerate()
         {

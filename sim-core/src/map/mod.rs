@@ -10,7 +10,7 @@
 //!   [`Map::clearance`] reads;
 //! - the exact Euclidean distance transform ([`Map::distance_field`]), built on first
 //!   use, needed only by the reference (f1tenth_gym) scan mode;
-//! - the wall faces in straight runs by 32 x 32-cell block and facing side (`faces`),
+//! - the wall faces in straight runs by 64 x 64-cell block and facing side (`faces`),
 //!   built on first use by the LIDAR's angular sweep (12 bytes per run and 16 per block:
 //!   about 0.3 MiB for a 2000 x 2000-cell race track with 20,000 runs).
 //!

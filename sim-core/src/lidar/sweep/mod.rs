@@ -3,12 +3,12 @@
 //!
 //! Instead of following each ray cell by cell, the sweep takes the map's wall faces
 //! ([`WallFaces`]: straight runs of cell sides between a free and an occupied cell, by
-//! 32 x 32-cell block and by the side they face) block by block, nearest blocks first,
+//! 64 x 64-cell block and by the side they face) block by block, nearest blocks first,
 //! and crosses each run with the beams that can see its block: a beam going +x meets a
 //! run on the line x = X at `t = (X - gx) / dx` (the march's own expression, so the same
 //! bits) if `gy + t dy` lies on the run. A beam's range is the least such t. Blocks wholly
 //! beyond the current range of every beam that can see them are skipped (per group of 16
-//! beams the largest current range is kept), first by groups of 4 x 4 blocks, then one
+//! beams the largest current range is kept), first by groups of 2 x 2 blocks, then one
 //! by one, and the sweep ends at the first ring of blocks beyond all of them.
 //!
 //! The march decides which cell a ray enters at a cell corner by its own rounding; the
@@ -35,7 +35,7 @@ const EPS: f64 = 1e-9;
 /// Beams per block of the culling maxima.
 const GROUP: usize = 16;
 /// Blocks per side of a group of blocks culled at once before its blocks one by one.
-const SUPER: usize = 4;
+const SUPER: usize = 2;
 /// A run's beams are crossed in whole aligned lanes of this many (the extra beams cannot
 /// cross it: testing them changes nothing).
 const LANES: usize = 4;
