@@ -452,14 +452,16 @@ impl Sweep {
             &faces.hi[more],
         );
         let top = (n - 1) as f64;
+        // A beam's crossing of a line: the inverse of its direction across the lines, and
+        // its direction along them.
+        let (inv, along) = if VERTICAL {
+            (&self.inv_dx[..], &self.dy[..])
+        } else {
+            (&self.inv_dy[..], &self.dx[..])
+        };
         #[cfg(target_arch = "x86_64")]
         if AVX {
             self.runs.reserve(m);
-            let (inv, along) = if VERTICAL {
-                (&self.inv_dx[..], &self.dy[..])
-            } else {
-                (&self.inv_dy[..], &self.dx[..])
-            };
             // SAFETY: `AVX` is set only by callers that checked the CPU has AVX; the
             // slices hold m + 3 runs and `runs` is reserved for m.
             unsafe {
@@ -476,11 +478,9 @@ impl Sweep {
                     &mut self.runs,
                 );
                 let Some((b0, b1)) = span else { return };
-                // The groups of every beam any run may lower (a group marked without
-                // need is only measured again).
-                for g in b0 / GROUP..=b1 / GROUP {
-                    self.dirty[g / 64] |= 1 << (g % 64);
-                }
+                // Every beam any run may lower (a group marked without need is only
+                // measured again).
+                mark_groups(&mut self.dirty, b0, b1);
                 self.flagged |= avx::cross_runs(
                     &self.runs,
                     m,
@@ -539,22 +539,14 @@ impl Sweep {
             last[j] = b;
             j += 1;
         }
-        let (inv, along) = if VERTICAL {
-            (&self.inv_dx[..], &self.dy[..])
-        } else {
-            (&self.inv_dy[..], &self.dx[..])
-        };
         let best = &mut self.best[..];
         let flag = &mut self.flag[..];
-        let dirty = &mut self.dirty[..];
         for j in 0..m {
             if first[j] > last[j] {
                 continue;
             }
             let (b0, b1) = (first[j] as usize, last[j] as usize);
-            for g in b0 / GROUP..=b1 / GROUP {
-                dirty[g / 64] |= 1 << (g % 64);
-            }
+            mark_groups(&mut self.dirty, b0, b1);
             let run = Run::new(line[j], los[j], his[j], g_line, g_along);
             let (from, to) = (b0 & !(LANES - 1), (b1 + 1).next_multiple_of(LANES));
             self.flagged |= run.cross(inv, along, best, flag, from, to);
@@ -577,6 +569,15 @@ fn max_of(start: f64, v: &[f64]) -> f64 {
     }
     let tail = quads.remainder().iter().fold(start, |a, &b| max(a, b));
     max(max(lanes[0], lanes[1]), max(max(lanes[2], lanes[3]), tail))
+}
+
+/// Marks in `dirty` the groups of beams `b0..=b1` (their culling maxima to be measured
+/// again after the block).
+#[inline(always)]
+fn mark_groups(dirty: &mut [u64], b0: usize, b1: usize) {
+    for g in b0 / GROUP..=b1 / GROUP {
+        dirty[g / 64] |= 1 << (g % 64);
+    }
 }
 
 /// Whether a box whose nearest point lies at squared distance `d2` (cells) from the origin
