@@ -11,13 +11,14 @@
 //! memory loads overlap; the march runs on the widest [`ScanPath`] the CPU supports
 //! (AVX-512, AVX or portable), all giving the same bits.
 //!
-//! On the AVX and portable paths a scan is taken instead, by default, by an angular
+//! By default a scan is taken instead by an angular
 //! sweep over the map's wall faces (`sweep`): runs of cell sides between free and
 //! occupied cells, block by block from the car outwards, crossed with the beams that can
 //! see them by the march's own expressions; beams whose crossings fall within 1e-9 cells
 //! of a run's end, where the march's rounding decides, are marched. So it gives the
-//! march's bits (tested on every track), and on most maps it is faster than the march
-//! there; on AVX-512 the march is faster ([`Lidar::with_sweep`] forces either).
+//! march's bits (tested on every track), and on most maps and CPUs it is faster than
+//! the march; on AVX-512 on an Intel CPU the march is the default
+//! ([`Lidar::with_sweep`] forces either).
 //! [`Lidar::scan_reference`]
 //! reproduces the reference's sphere tracing on the distance transform, including its
 //! angle quantisation, for conformance with f1tenth_gym (see
@@ -139,16 +140,18 @@ impl Lidar {
         self
     }
 
-    /// Whether scans take the angular sweep: as forced by [`Lidar::with_sweep`], else on
-    /// every path but AVX-512 (there the march is faster; on the AVX and portable paths
-    /// the sweep is, on most maps: `docs/performance-scan.md`).
+    /// Whether scans take the angular sweep: as forced by [`Lidar::with_sweep`], else
+    /// on every path but AVX-512 on an Intel CPU, where the march is as fast or faster
+    /// (measured on the shipped maps and on real tracks: on AMD's AVX-512, whose 512-bit
+    /// operations are split in two, and on every AVX2-only and portable path the sweep is
+    /// the faster on most maps: `docs/performance-scan.md`).
     pub fn sweeps(&self) -> bool {
         self.sweeps_on(self.path())
     }
 
     /// [`Lidar::sweeps`] for scans on `path`.
     fn sweeps_on(&self, path: ScanPath) -> bool {
-        self.sweep.unwrap_or(path < ScanPath::Avx512)
+        self.sweep.unwrap_or_else(|| sweep_pays(path))
     }
 
     /// The code path [`Lidar::scan`] takes: the one forced by [`Lidar::with_path`], else
@@ -556,6 +559,12 @@ fn slab(ox: f64, oy: f64, dx: f64, dy: f64, hx: f64, hy: f64) -> Option<f64> {
         }
     }
     if t0.is_finite() { Some(t0) } else { None }
+}
+
+/// The default algorithm of scans on `path`: the sweep, except on AVX-512 on an Intel CPU
+/// (see [`Lidar::sweeps`]).
+fn sweep_pays(path: ScanPath) -> bool {
+    path != ScanPath::Avx512 || !march::intel_cpu()
 }
 
 #[cfg(test)]

@@ -563,3 +563,17 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
     );
     assert!(handed > 0, "no beam was left to the march");
 }
+
+#[test]
+fn the_sweep_is_the_default_except_on_intel_avx512() {
+    for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
+        let lidar = Lidar::new(LidarConfig::default()).with_path(path).unwrap();
+        let intel_avx512 = path == ScanPath::Avx512 && march::intel_cpu();
+        assert_eq!(lidar.sweeps(), !intel_avx512, "default on {path}");
+        assert!(
+            lidar.clone().with_sweep(true).sweeps(),
+            "forced sweep on {path}"
+        );
+        assert!(!lidar.with_sweep(false).sweeps(), "forced march on {path}");
+    }
+}
