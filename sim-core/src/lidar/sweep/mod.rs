@@ -735,6 +735,48 @@ mod tests {
     use crate::geometry::wrap_angle;
     use std::f64::consts::TAU;
 
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn atan2_ps_is_within_its_bound() {
+        use std::arch::x86_64::*;
+        if !std::arch::is_x86_feature_detected!("avx") {
+            return;
+        }
+        let mut worst = 0.0f64;
+        let n = 200_000;
+        for r in [1e-9, 1e-3, 1.0, 1e4, 3e7] {
+            for i in (0..n).step_by(8) {
+                let (mut xs, mut ys) = ([0f32; 8], [0f32; 8]);
+                let mut exact = [0f64; 8];
+                for l in 0..8 {
+                    let a = -PI + TAU * (i + l) as f64 / n as f64;
+                    let (y, x) = (r * libm::sin(a), r * libm::cos(a));
+                    (xs[l], ys[l]) = (x as f32, y as f32);
+                    exact[l] = libm::atan2(y, x);
+                }
+                let mut got = [0f32; 8];
+                // SAFETY: the CPU has AVX (checked above); the arrays hold eight lanes.
+                unsafe {
+                    let a =
+                        avx::atan2_ps(_mm256_loadu_ps(ys.as_ptr()), _mm256_loadu_ps(xs.as_ptr()));
+                    _mm256_storeu_ps(got.as_mut_ptr(), a);
+                }
+                for l in 0..8 {
+                    worst = worst.max(wrap_angle(f64::from(got[l]) - exact[l]).abs());
+                }
+            }
+        }
+        assert!(worst < 4.2e-5, "worst error {worst}");
+        assert!(worst < avx::ANGLE_ERR_PS);
+        // the negative x axis: +pi for y = +-0.0, as the double-precision atan2
+        // SAFETY: as above.
+        let on_axis = unsafe {
+            let a = avx::atan2_ps(_mm256_set1_ps(-0.0), _mm256_set1_ps(-2.0));
+            _mm256_cvtss_f32(a)
+        };
+        assert_eq!(on_axis, std::f32::consts::PI);
+    }
+
     #[test]
     fn atan2_fast_is_within_its_bound() {
         let mut worst = 0.0f64;
