@@ -47,8 +47,8 @@ pub struct PerfArgs {
     #[arg(long)]
     scan_path: Option<String>,
     /// LIDAR algorithm: the march or the angular sweep over the map's wall faces (default:
-    /// the sweep, except on avx512 on an Intel CPU); both give the same ranges, at speeds
-    /// that depend on the map and the CPU.
+    /// the sweep); both give the same ranges, at speeds that depend on the map and the
+    /// CPU.
     #[arg(long, value_enum)]
     scan_algorithm: Option<ScanAlgorithm>,
     /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym

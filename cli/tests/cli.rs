@@ -39,13 +39,8 @@ fn perf_json_has_the_documented_keys() {
     assert_eq!(v["worlds"], 3, "{out}");
     assert_eq!(v["agents"], 2, "{out}");
     assert!(v["agent_steps_per_s_scan"].as_f64().unwrap() > 0.0, "{out}");
-    // the default algorithm: the march on the AVX-512 path, else the angular sweep
-    let default = if v["scan_path"] == "avx512" {
-        "march"
-    } else {
-        "sweep"
-    };
-    assert_eq!(v["scan_algorithm"], default, "{out}");
+    // the default algorithm: the angular sweep, on every path
+    assert_eq!(v["scan_algorithm"], "sweep", "{out}");
     // each algorithm forced on the portable path, named in the report
     for algorithm in ["march", "sweep"] {
         let (ok, out, err) = paddock(&[

@@ -11,16 +11,14 @@
 //! memory loads overlap; the march runs on the widest [`ScanPath`] the CPU supports
 //! (AVX-512, AVX or portable), all giving the same bits.
 //!
-//! By default a scan is taken instead by an angular
-//! sweep over the map's wall faces (`sweep`): runs of cell sides between free and
-//! occupied cells, block by block from the car outwards, crossed with the beams that can
-//! see them by the march's own expressions; beams whose crossings fall within 1e-9 cells
-//! of a run's end, where the march's rounding decides, are marched. So it gives the
-//! march's bits (tested on every track), and on most maps and CPUs it is faster than
-//! the march; on AVX-512 on an Intel CPU the march is the default
-//! ([`Lidar::with_sweep`] forces either).
-//! [`Lidar::scan_reference`]
-//! reproduces the reference's sphere tracing on the distance transform, including its
+//! By default a scan is taken instead, on every path, by an angular sweep over the
+//! map's wall faces (`sweep`): runs of cell sides between free and occupied cells, block
+//! by block from the car outwards, crossed with the beams that can see them by the
+//! march's own expressions; beams whose crossings fall within 1e-9 cells of a run's end,
+//! where the march's rounding decides, are marched. So it gives the march's bits (tested
+//! on every track), and on most maps and CPUs it is faster than the march
+//! ([`Lidar::with_sweep`] forces either). [`Lidar::scan_reference`] reproduces the
+//! reference's sphere tracing on the distance transform, including its
 //! angle quantisation, for conformance with f1tenth_gym (see
 //! `shared/conformance/f1tenth_gym_scan`).
 
@@ -140,18 +138,12 @@ impl Lidar {
         self
     }
 
-    /// Whether scans take the angular sweep: as forced by [`Lidar::with_sweep`], else
-    /// on every path but AVX-512 on an Intel CPU, where the march is as fast or faster
-    /// (measured on the shipped maps and on real tracks: on AMD's AVX-512, whose 512-bit
-    /// operations are split in two, and on every AVX2-only and portable path the sweep is
-    /// the faster on most maps: `docs/performance-scan.md`).
+    /// Whether scans take the angular sweep: as forced by [`Lidar::with_sweep`], else yes,
+    /// on every path (on most maps and CPUs measured it is the faster; on an Intel CPU's
+    /// `avx512` path the two are about even on one car and the sweep the faster on two:
+    /// `docs/performance-scan.md`).
     pub fn sweeps(&self) -> bool {
-        self.sweeps_on(self.path())
-    }
-
-    /// [`Lidar::sweeps`] for scans on `path`.
-    fn sweeps_on(&self, path: ScanPath) -> bool {
-        self.sweep.unwrap_or_else(|| sweep_pays(path))
+        self.sweep.unwrap_or(true)
     }
 
     /// The code path [`Lidar::scan`] takes: the one forced by [`Lidar::with_path`], else
@@ -238,7 +230,7 @@ impl Lidar {
             res,
             inv_res,
             max_range,
-            sweep: self.sweeps_on(path),
+            sweep: self.sweeps(),
             boxes: &boxes,
         };
         #[cfg(target_arch = "x86_64")]
@@ -559,12 +551,6 @@ fn slab(ox: f64, oy: f64, dx: f64, dy: f64, hx: f64, hy: f64) -> Option<f64> {
         }
     }
     if t0.is_finite() { Some(t0) } else { None }
-}
-
-/// The default algorithm of scans on `path`: the sweep, except on AVX-512 on an Intel CPU
-/// (see [`Lidar::sweeps`]).
-fn sweep_pays(path: ScanPath) -> bool {
-    path != ScanPath::Avx512 || !march::intel_cpu()
 }
 
 #[cfg(test)]

@@ -565,11 +565,10 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
 }
 
 #[test]
-fn the_sweep_is_the_default_except_on_intel_avx512() {
+fn the_sweep_is_the_default_on_every_path() {
     for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
         let lidar = Lidar::new(LidarConfig::default()).with_path(path).unwrap();
-        let intel_avx512 = path == ScanPath::Avx512 && march::intel_cpu();
-        assert_eq!(lidar.sweeps(), !intel_avx512, "default on {path}");
+        assert!(lidar.sweeps(), "default on {path}");
         assert!(
             lidar.clone().with_sweep(true).sweeps(),
             "forced sweep on {path}"

@@ -69,25 +69,16 @@ pub(super) fn avx512_usable(map: &Map) -> bool {
 }
 
 /// Whether the AVX march reads its clearances by AVX2 gathers: on Intel CPUs with AVX2
-/// (faster there; see `avx.rs`).
+/// (faster there; see `avx.rs`). Detected once.
 #[cfg(target_arch = "x86_64")]
 pub(in crate::lidar) fn avx_gather_pays() -> bool {
-    intel_cpu() && std::arch::is_x86_feature_detected!("avx2")
-}
-
-/// Whether this CPU is Intel's (the vendor string of CPUID leaf 0, "GenuineIntel").
-/// Detected once.
-pub(in crate::lidar) fn intel_cpu() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        static INTEL: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *INTEL.get_or_init(|| {
-            let id = std::arch::x86_64::__cpuid(0);
-            (id.ebx, id.edx, id.ecx) == (0x756e_6547, 0x4965_6e69, 0x6c65_746e)
-        })
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    false
+    static PAYS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *PAYS.get_or_init(|| {
+        // The vendor string of CPUID leaf 0: "GenuineIntel".
+        let id = std::arch::x86_64::__cpuid(0);
+        let intel = (id.ebx, id.edx, id.ecx) == (0x756e_6547, 0x4965_6e69, 0x6c65_746e);
+        intel && std::arch::is_x86_feature_detected!("avx2")
+    })
 }
 
 /// 1.5 * 2^52: adding and subtracting it rounds a float of magnitude < 2^51 to an integer.
