@@ -1,6 +1,9 @@
 //! The sweep's AVX kernels: the runs' beam ranges, four runs at a time, and their
 //! crossings, four beams at a time (the same operations lane by lane as the portable
-//! code in `super`, so the same bits).
+//! code in `super`, so the same bits). The directions that bound the runs' beam ranges
+//! are taken in single precision and the ranges widened by its error bound: a range only
+//! has to hold every beam that can cross the run, and a beam that cannot changes nothing,
+//! so the bits stay the same.
 
 use std::arch::x86_64::*;
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
