@@ -22,7 +22,9 @@ use paddock_policy::{Driver, PurePursuit, PurePursuitParams};
 use paddock_sim::circuit::{Circuit, Circuits, DEFAULT_MAP};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
-use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
+use paddock_sim::lidar::{
+    Lidar, LidarConfig, ScanAlgorithm, ScanPath, cpu_features, thread_scans_by_algorithm,
+};
 use paddock_sim::world::{Action, PackedObservations, Starts, World, WorldConfig, Worlds};
 use serde::Serialize;
 
@@ -46,11 +48,11 @@ pub struct PerfArgs {
     /// LIDAR code path: portable, avx or avx512 (default: the widest this CPU has).
     #[arg(long)]
     scan_path: Option<String>,
-    /// LIDAR algorithm: the march or the angular sweep over the map's wall faces (default:
-    /// the sweep); both give the same ranges, at speeds that depend on the map and the
-    /// CPU.
-    #[arg(long, value_enum)]
-    scan_algorithm: Option<ScanAlgorithm>,
+    /// LIDAR algorithm: the march, the angular sweep over the map's wall faces, or auto
+    /// (the default: the faster of the two, timed on the first scans of the map); all
+    /// give the same ranges, at speeds that depend on the map and the CPU.
+    #[arg(long, value_enum, default_value_t = AlgorithmArg::Auto)]
+    scan_algorithm: AlgorithmArg,
     /// Vehicle YAML of every car (as `paddock sysid` writes it; default: the f1tenth_gym
     /// vehicle).
     #[arg(long, value_name = "FILE")]
@@ -60,21 +62,33 @@ pub struct PerfArgs {
     json: bool,
 }
 
-/// How the exact LIDAR scan is computed (the same bits either way).
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ScanAlgorithm {
+/// `--scan-algorithm`: [`ScanAlgorithm`] by name.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum AlgorithmArg {
+    /// The faster of the two, timed on the first scans of the map and again every few
+    /// thousand scans.
+    Auto,
     /// Grid march accelerated by the clearance table.
     March,
     /// Angular sweep over the map's wall faces.
     Sweep,
 }
 
+impl From<AlgorithmArg> for ScanAlgorithm {
+    fn from(a: AlgorithmArg) -> ScanAlgorithm {
+        match a {
+            AlgorithmArg::Auto => ScanAlgorithm::Auto,
+            AlgorithmArg::March => ScanAlgorithm::March,
+            AlgorithmArg::Sweep => ScanAlgorithm::Sweep,
+        }
+    }
+}
+
 /// The scans of a measurement: code path and algorithm.
 #[derive(Clone, Copy)]
 struct Scan {
     path: ScanPath,
-    sweep: bool,
+    algorithm: ScanAlgorithm,
 }
 
 #[derive(Serialize)]
@@ -87,8 +101,11 @@ struct PerfReport {
     scan_path: String,
     /// How that path reads the clearance table here (`gather` or `scalar loads`).
     scan_clearance_loads: String,
-    /// `march` or `sweep`.
+    /// `auto`, `march` or `sweep`.
     scan_algorithm: ScanAlgorithm,
+    /// The share of the stepping measurement's scans the sweep computed (the rest the
+    /// march): 1 or 0 when forced, measured under `auto`.
+    scan_sweep_share: Option<f64>,
     /// The CPU's SIMD features, space-separated.
     cpu_features: String,
     agents: usize,
@@ -214,7 +231,7 @@ fn perf_world(
     let mut world = World::new(circuit.clone(), config)?;
     if let Some(scan) = scan {
         world.set_scan_path(scan.path)?;
-        world.set_scan_sweep(scan.sweep);
+        world.set_scan_algorithm(scan.algorithm);
     }
     Ok(world)
 }
@@ -297,11 +314,10 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         Some(name) => ScanPath::from_name(name)
             .with_context(|| format!("--scan-path {name:?} is not one of portable, avx, avx512"))?,
     };
-    let mut lidar = Lidar::new(LidarConfig::default()).with_path(path)?;
-    if let Some(algorithm) = args.scan_algorithm {
-        lidar = lidar.with_sweep(algorithm == ScanAlgorithm::Sweep);
-    }
-    let sweep = lidar.sweeps();
+    let algorithm = ScanAlgorithm::from(args.scan_algorithm);
+    let lidar = Lidar::new(LidarConfig::default())
+        .with_path(path)?
+        .with_algorithm(algorithm);
     let vehicle = args::vehicle(args.vehicle.as_deref())?;
     tracing::info!(map = %circuit.name, agents = args.agents, "measuring without scan");
     let noscan = drive(
@@ -313,18 +329,22 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         &vehicle,
     )?;
     let noscan_rate = noscan.agent_steps as f64 / noscan.busy.as_secs_f64();
-    let (scan_rate, rays_rate) = if args.no_scan {
-        (None, None)
+    let (scan_rate, rays_rate, sweep_share) = if args.no_scan {
+        (None, None, None)
     } else {
         tracing::info!(map = %circuit.name, agents = args.agents, "measuring with scan");
+        let (march0, sweep0) = thread_scans_by_algorithm();
         let scan = drive(
             &circuit,
             args.agents,
             args.worlds,
-            Some(Scan { path, sweep }),
+            Some(Scan { path, algorithm }),
             args.seconds,
             &vehicle,
         )?;
+        let (march1, sweep1) = thread_scans_by_algorithm();
+        let swept = (sweep1 - sweep0) as f64;
+        let share = swept / (swept + (march1 - march0) as f64).max(1.0);
         let scan_rate = scan.agent_steps as f64 / scan.busy.as_secs_f64();
         let beams = LidarConfig::default().num_beams;
         let mut out = vec![0.0; beams];
@@ -343,7 +363,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         }
         let rays = scans as f64 * beams as f64 / clock.busy().as_secs_f64();
         tracing::debug!(checksum, "rays measured");
-        (Some(scan_rate), Some(rays))
+        (Some(scan_rate), Some(rays), Some(share))
     };
     let report = PerfReport {
         map: circuit.name.clone(),
@@ -351,11 +371,8 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         map_resolution: circuit.map.resolution(),
         scan_path: path.name().to_string(),
         scan_clearance_loads: path.clearance_loads().to_string(),
-        scan_algorithm: if sweep {
-            ScanAlgorithm::Sweep
-        } else {
-            ScanAlgorithm::March
-        },
+        scan_algorithm: algorithm,
+        scan_sweep_share: sweep_share,
         cpu_features: cpu_features(),
         agents: args.agents,
         worlds: args.worlds,
@@ -380,9 +397,14 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         "  LIDAR path {}, clearances by {}, {} (CPU features: {})",
         report.scan_path,
         report.scan_clearance_loads,
-        match report.scan_algorithm {
-            ScanAlgorithm::March => "march",
-            ScanAlgorithm::Sweep => "angular sweep",
+        match (report.scan_algorithm, report.scan_sweep_share) {
+            (ScanAlgorithm::March, _) => "march".to_string(),
+            (ScanAlgorithm::Sweep, _) => "angular sweep".to_string(),
+            (ScanAlgorithm::Auto, Some(share)) => format!(
+                "auto (timed: the angular sweep took {:.0} % of the scans, the march the rest)",
+                100.0 * share
+            ),
+            (ScanAlgorithm::Auto, None) => "auto".to_string(),
         },
         report.cpu_features
     );

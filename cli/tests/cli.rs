@@ -23,6 +23,7 @@ fn perf_json_has_the_documented_keys() {
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert!(v["agent_steps_per_s_noscan"].as_f64().unwrap() > 0.0);
     assert!(v["agent_steps_per_s_scan"].is_null());
+    assert!(v["scan_sweep_share"].is_null());
     // a batch of worlds stepped in one call
     let (ok, out, err) = paddock(&[
         "perf",
@@ -39,10 +40,12 @@ fn perf_json_has_the_documented_keys() {
     assert_eq!(v["worlds"], 3, "{out}");
     assert_eq!(v["agents"], 2, "{out}");
     assert!(v["agent_steps_per_s_scan"].as_f64().unwrap() > 0.0, "{out}");
-    // the default algorithm: the angular sweep, on every path
-    assert_eq!(v["scan_algorithm"], "sweep", "{out}");
+    // the default algorithm: the faster of the two, timed
+    assert_eq!(v["scan_algorithm"], "auto", "{out}");
+    let share = v["scan_sweep_share"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&share), "{out}");
     // each algorithm forced on the portable path, named in the report
-    for algorithm in ["march", "sweep"] {
+    for (algorithm, share) in [("march", 0.0), ("sweep", 1.0)] {
         let (ok, out, err) = paddock(&[
             "perf",
             "--json",
@@ -56,12 +59,13 @@ fn perf_json_has_the_documented_keys() {
         assert!(ok, "{err}");
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(v["scan_algorithm"], algorithm, "{out}");
+        assert_eq!(v["scan_sweep_share"], share, "{out}");
         assert_eq!(v["scan_path"], "portable", "{out}");
         assert!(v["rays_per_s"].as_f64().unwrap() > 0.0, "{out}");
     }
     let (ok, _, err) = paddock(&["perf", "--scan-algorithm", "raytrace"]);
     assert!(
-        !ok && err.contains("raytrace") && err.contains("march, sweep"),
+        !ok && err.contains("raytrace") && err.contains("auto, march, sweep"),
         "{err}"
     );
 }

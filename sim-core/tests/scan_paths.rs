@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 use paddock_sim::circuit::Circuits;
 use paddock_sim::geometry::{Obb, Pose};
-use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath};
+use paddock_sim::lidar::{Lidar, LidarConfig, ScanAlgorithm, ScanPath};
 use paddock_sim::map::Map;
 use paddock_sim::rng::Rng;
 use paddock_sim::track::Track;
@@ -86,10 +86,10 @@ fn check_track(name: &str, map: &Map, track: &Track, seed: u64, poses: usize) ->
                 assert_eq!(
                     a.to_bits(),
                     b.to_bits(),
-                    "{name}: path {} (sweep {}) beam {i} from {pose:?} with {} cars: {a} vs \
+                    "{name}: path {} ({}) beam {i} from {pose:?} with {} cars: {a} vs \
                      portable {b}",
                     fast.path(),
-                    fast.sweeps(),
+                    fast.algorithm(),
                     cars.len()
                 );
             }
@@ -112,7 +112,8 @@ fn every_scan_path_gives_the_same_bits_on_real_tracks() {
         let track = Track::load(center, None).unwrap_or_else(|e| panic!("{name}: {e}"));
         compared += check_track(name, &map, &track, 1000 + k as u64, 150);
     }
-    let others = 2 * ScanPath::ALL.iter().filter(|p| p.supported()).count() - 1;
+    // each path by the sweep and all but the portable by the march, then the default
+    let others = 2 * ScanPath::ALL.iter().filter(|p| p.supported()).count();
     assert_eq!(compared, others * tracks.len() * 150);
 }
 
@@ -138,15 +139,16 @@ fn assert_paths_agree(name: &str, lidars: &[Lidar], map: &Map, pose: Pose, cars:
             assert_eq!(
                 a.to_bits(),
                 b.to_bits(),
-                "{name}: path {} (sweep {}) beam {i} from {pose:?}: {a} vs portable {b}",
+                "{name}: path {} ({}) beam {i} from {pose:?}: {a} vs portable {b}",
                 fast.path(),
-                fast.sweeps()
+                fast.algorithm()
             );
         }
     }
 }
 
-/// `config` on every path this CPU has, by the march (portable first) and by the sweep.
+/// `config` on every path this CPU has, by the march (portable first) and by the sweep, then
+/// with the defaults (the widest path, the algorithm chosen by timing).
 fn every_path(config: LidarConfig) -> Vec<Lidar> {
     let lidar = Lidar::new(config);
     let paths = ScanPath::ALL.into_iter().filter(|p| p.supported());
@@ -154,7 +156,9 @@ fn every_path(config: LidarConfig) -> Vec<Lidar> {
         .clone()
         .map(|p| lidar.clone().with_path(p).unwrap().with_sweep(false));
     let sweep = paths.map(|p| lidar.clone().with_path(p).unwrap().with_sweep(true));
-    march.chain(sweep).collect()
+    // and as a world scans by default: the widest path, each thread choosing its algorithm
+    let auto = std::iter::once(lidar.clone());
+    march.chain(sweep).chain(auto).collect()
 }
 
 /// A car driven along the centreline: poses 0.01 s apart at 4-12 m/s with a weaving
@@ -295,7 +299,12 @@ fn worlds_step_to_the_same_bits_by_march_and_by_sweep() {
                 let mut w = World::new(circuit.clone(), config.clone()).unwrap();
                 w.set_scan_path(path).unwrap();
                 w.set_scan_sweep(sweep);
-                assert_eq!(w.scan_sweeps(), sweep);
+                let want = if sweep {
+                    ScanAlgorithm::Sweep
+                } else {
+                    ScanAlgorithm::March
+                };
+                assert_eq!(w.scan_algorithm(), want);
                 w
             })
             .collect();

@@ -11,17 +11,20 @@
 //! memory loads overlap; the march runs on the widest [`ScanPath`] the CPU supports
 //! (AVX-512, AVX or portable), all giving the same bits.
 //!
-//! By default a scan is taken instead, on every path, by an angular sweep over the
-//! map's wall faces (`sweep`): runs of cell sides between free and occupied cells, block
-//! by block from the car outwards, crossed with the beams that can see them by the
-//! march's own expressions; beams whose crossings fall within 1e-9 cells of a run's end,
-//! where the march's rounding decides, are marched. So it gives the march's bits (tested
-//! on every track), and on most maps and CPUs it is faster than the march
-//! ([`Lidar::with_sweep`] forces either). [`Lidar::scan_reference`] reproduces the
+//! A scan can instead be taken, on every path, by an angular sweep over the map's wall
+//! faces (`sweep`): runs of cell sides between free and occupied cells, block by block
+//! from the car outwards, crossed with the beams that can see them by the march's own
+//! expressions; beams whose crossings fall within 1e-9 cells of a run's end, where the
+//! march's rounding decides, are marched. So it gives the march's bits (tested on every
+//! track). Which of the two is faster depends on the map and the CPU, so by default
+//! ([`ScanAlgorithm::Auto`]) each thread times both on its first scans of a map and
+//! again from time to time, and takes the faster (`choice`); [`Lidar::with_algorithm`]
+//! forces either. [`Lidar::scan_reference`] reproduces the
 //! reference's sphere tracing on the distance transform, including its
 //! angle quantisation, for conformance with f1tenth_gym (see
 //! `shared/conformance/f1tenth_gym_scan`).
 
+mod choice;
 mod march;
 mod path;
 mod reference;
@@ -42,6 +45,53 @@ thread_local! {
     /// The per-beam arrays of this thread's sweeps (see `Lidar::scan_sweep`).
     static SCAN_SWEEP: std::cell::Cell<Option<Box<sweep::Sweep>>> =
         const { std::cell::Cell::new(None) };
+    /// This thread's choices between the sweep and the march (see `choice`).
+    static SCAN_CHOICE: std::cell::RefCell<choice::Choice> =
+        const { std::cell::RefCell::new(choice::Choice::new()) };
+}
+
+/// How the exact scan is computed: the same bits whichever, at speeds that depend on the
+/// map and the CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScanAlgorithm {
+    /// Each thread times both on its first scans of a map (and again every few thousand
+    /// scans) and takes the faster.
+    #[default]
+    Auto,
+    /// The angular sweep over the map's wall faces.
+    Sweep,
+    /// The march through the grid, accelerated by the clearance table.
+    March,
+}
+
+impl ScanAlgorithm {
+    pub const ALL: [ScanAlgorithm; 3] = [
+        ScanAlgorithm::Auto,
+        ScanAlgorithm::Sweep,
+        ScanAlgorithm::March,
+    ];
+
+    /// `auto`, `sweep` or `march`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ScanAlgorithm::Auto => "auto",
+            ScanAlgorithm::Sweep => "sweep",
+            ScanAlgorithm::March => "march",
+        }
+    }
+}
+
+impl std::fmt::Display for ScanAlgorithm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// This thread's scans so far by the algorithm that computed them: `(march, sweep)`
+/// (a scan the sweep does not apply to, from off the map say, counts as marched).
+pub fn thread_scans_by_algorithm() -> (u64, u64) {
+    SCAN_CHOICE.with_borrow(|c| (c.counts[0], c.counts[1]))
 }
 
 /// LIDAR parameters. Defaults are those of the f1tenth_gym reference (Hokuyo UST-10LX).
@@ -85,9 +135,8 @@ pub struct Lidar {
     /// Whether each box is tested only on the beams that can meet it (tests turn it off
     /// to compare with testing every beam).
     cull_boxes: bool,
-    /// Whether scans take the angular sweep over wall faces (same bits as the march);
-    /// `None`: unless the path is AVX-512 (see [`Lidar::sweeps`]).
-    sweep: Option<bool>,
+    /// The sweep, the march, or the faster of them (same bits either way).
+    algorithm: ScanAlgorithm,
 }
 
 impl Lidar {
@@ -112,7 +161,7 @@ impl Lidar {
             reference,
             path: None,
             cull_boxes: true,
-            sweep: None,
+            algorithm: ScanAlgorithm::Auto,
         }
     }
 
@@ -130,20 +179,28 @@ impl Lidar {
         Ok(self)
     }
 
-    /// This LIDAR with its scans taken by the angular sweep over the map's wall faces
-    /// (`on`) or by the march alone, whatever the path: the same bits either way
-    /// (tested); only the speed differs.
-    pub fn with_sweep(mut self, on: bool) -> Self {
-        self.sweep = Some(on);
+    /// This LIDAR with its scans taken by `algorithm`, whatever the path: the same bits
+    /// whichever (tested); only the speed differs.
+    pub fn with_algorithm(mut self, algorithm: ScanAlgorithm) -> Self {
+        self.algorithm = algorithm;
         self
     }
 
-    /// Whether scans take the angular sweep: as forced by [`Lidar::with_sweep`], else yes,
-    /// on every path (on most maps and CPUs measured it is the faster; on an Intel CPU's
-    /// `avx512` path the two are about even on one car and the sweep the faster on two:
-    /// `docs/performance-scan.md`).
-    pub fn sweeps(&self) -> bool {
-        self.sweep.unwrap_or(true)
+    /// This LIDAR with its scans taken by the angular sweep over the map's wall faces
+    /// (`on`) or by the march alone ([`Lidar::with_algorithm`]).
+    pub fn with_sweep(self, on: bool) -> Self {
+        self.with_algorithm(if on {
+            ScanAlgorithm::Sweep
+        } else {
+            ScanAlgorithm::March
+        })
+    }
+
+    /// How scans are computed: as set by [`Lidar::with_algorithm`], else
+    /// [`ScanAlgorithm::Auto`] (measured per map, CPU and path, the sweep and the march
+    /// are each the faster somewhere: `docs/performance-scan.md`).
+    pub fn algorithm(&self) -> ScanAlgorithm {
+        self.algorithm
     }
 
     /// The code path [`Lidar::scan`] takes: the one forced by [`Lidar::with_path`], else
@@ -218,6 +275,12 @@ impl Lidar {
                 (BoxFrame::new(b), beams)
             })
             .collect();
+        let key = choice::Key {
+            map: map as *const Map as usize,
+            path: path.level(),
+            beams: n,
+        };
+        let pick = SCAN_CHOICE.with_borrow_mut(|c| c.pick(self.algorithm, key));
         let job = ScanJob {
             x,
             y,
@@ -230,23 +293,35 @@ impl Lidar {
             res,
             inv_res,
             max_range,
-            sweep: self.sweeps(),
+            sweep: pick.sweep,
             boxes: &boxes,
         };
+        let start = pick.trial.map(|_| std::time::Instant::now());
+        let swept = self.scan_on(map, &job, out, path);
+        SCAN_CHOICE.with_borrow_mut(|c| {
+            c.counts[usize::from(swept)] += 1;
+            if let (Some(trial), Some(start)) = (pick.trial, start) {
+                let nanos = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                c.timed(trial, nanos);
+            }
+        });
+    }
+
+    /// The scan of `job` on the widest of `path` and the paths `map` allows; whether the
+    /// sweep took it.
+    fn scan_on(&self, map: &Map, job: &ScanJob, out: &mut [f64], path: ScanPath) -> bool {
         #[cfg(target_arch = "x86_64")]
         {
             if path >= ScanPath::Avx512 && march::avx512_usable(map) {
                 // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F and AVX2.
-                unsafe { self.scan_avx512(map, &job, out) };
-                return;
+                return unsafe { self.scan_avx512(map, job, out) };
             }
             if path >= ScanPath::Avx && march::avx_usable(map) {
                 // SAFETY: `avx_usable` checked that the CPU supports AVX.
-                unsafe { self.scan_avx(map, &job, out, path.level()) };
-                return;
+                return unsafe { self.scan_avx(map, job, out, path.level()) };
             }
         }
-        self.scan_chunks::<false>(map, &job, out, 0);
+        self.scan_chunks::<false>(map, job, out, 0)
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX enabled, so that its simple per-beam loops
@@ -256,8 +331,8 @@ impl Lidar {
     /// The CPU must support AVX.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
-    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
-        self.scan_chunks::<true>(map, job, out, level);
+    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) -> bool {
+        self.scan_chunks::<true>(map, job, out, level)
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX-512 enabled (the march itself picks its
@@ -267,16 +342,23 @@ impl Lidar {
     /// The CPU must support AVX-512F and AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx2")]
-    unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
-        self.scan_chunks::<true>(map, job, out, 2);
+    unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) -> bool {
+        self.scan_chunks::<true>(map, job, out, 2)
     }
 
-    /// The beams in chunks: box limits, grid directions, the march (at most SIMD level
+    /// The scan by the sweep if `job` asks for it and it applies (then true), else the
+    /// beams in chunks: box limits, grid directions, the march (at most SIMD level
     /// `level`, see [`ScanPath`]), metres.
     #[inline(always)]
-    fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
+    fn scan_chunks<const AVX: bool>(
+        &self,
+        map: &Map,
+        job: &ScanJob,
+        out: &mut [f64],
+        level: u8,
+    ) -> bool {
         if job.sweep && self.scan_sweep::<AVX>(map, job, out, level) {
-            return;
+            return true;
         }
         let n = out.len();
         // The ray batch (tens of KiB) is rewritten for every chunk, so one per thread
@@ -306,6 +388,7 @@ impl Lidar {
             start += len;
         }
         SCAN_BATCH.set(Some(batch));
+        false
     }
 
     /// The scan by the angular sweep (see `sweep`), the beams it leaves to the march

@@ -565,14 +565,78 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
 }
 
 #[test]
-fn the_sweep_is_the_default_on_every_path() {
+fn the_algorithm_is_chosen_by_default_on_every_path_and_can_be_forced() {
     for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
         let lidar = Lidar::new(LidarConfig::default()).with_path(path).unwrap();
-        assert!(lidar.sweeps(), "default on {path}");
-        assert!(
-            lidar.clone().with_sweep(true).sweeps(),
-            "forced sweep on {path}"
+        assert_eq!(lidar.algorithm(), ScanAlgorithm::Auto, "default on {path}");
+        for a in ScanAlgorithm::ALL {
+            assert_eq!(
+                lidar.clone().with_algorithm(a).algorithm(),
+                a,
+                "{a} on {path}"
+            );
+        }
+        assert_eq!(
+            lidar.clone().with_sweep(true).algorithm(),
+            ScanAlgorithm::Sweep
         );
-        assert!(!lidar.with_sweep(false).sweeps(), "forced march on {path}");
+        assert_eq!(lidar.with_sweep(false).algorithm(), ScanAlgorithm::March);
     }
+}
+
+/// By default a thread's first scans of a map try both algorithms in turn (and give the
+/// same bits as either forced); forced, every scan takes the one asked for.
+#[test]
+fn auto_scans_try_both_algorithms_and_forced_scans_take_one() {
+    let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
+    let (map, track) = (&circuit.map, &circuit.track);
+    let n = choice::TRIAL as u64 * 2;
+    // a map of its own, so that no earlier scan of this thread has settled its choice
+    let map = Map::from_grid(
+        "copy",
+        map.width(),
+        map.height(),
+        map.resolution(),
+        map.origin(),
+        map.occupancy().to_vec(),
+    )
+    .unwrap();
+    let auto = Lidar::new(LidarConfig::default());
+    let sweep = auto.clone().with_algorithm(ScanAlgorithm::Sweep);
+    let march = auto.clone().with_algorithm(ScanAlgorithm::March);
+    let beams = auto.num_beams();
+    let (mut a, mut b) = (vec![0.0; beams], vec![0.0; beams]);
+    let poses: Vec<Pose> = (0..n)
+        .map(|i| track.at(track.length() * i as f64 / n as f64).0)
+        .collect();
+    let delta = |f: &mut dyn FnMut()| {
+        let (m0, s0) = thread_scans_by_algorithm();
+        f();
+        let (m1, s1) = thread_scans_by_algorithm();
+        (m1 - m0, s1 - s0)
+    };
+    let (mut swept, mut forced) = (0, 0);
+    for (i, &p) in poses.iter().enumerate() {
+        let by_auto = delta(&mut || auto.scan(&map, p, &[], &mut a));
+        let by_march = delta(&mut || march.scan(&map, p, &[], &mut b));
+        assert_eq!(by_march, (1, 0));
+        assert_eq!(
+            a.iter().map(|r| r.to_bits()).collect::<Vec<_>>(),
+            b.iter().map(|r| r.to_bits()).collect::<Vec<_>>(),
+            "auto vs march from {p:?}"
+        );
+        // the trial: the sweep first, then the march, in turn (the sweep marches the
+        // scans it does not apply to)
+        let by_sweep = delta(&mut || sweep.scan(&map, p, &[], &mut b));
+        assert!(by_sweep == (0, 1) || by_sweep == (1, 0), "{by_sweep:?}");
+        assert_eq!(
+            by_auto,
+            if i % 2 == 0 { by_sweep } else { (1, 0) },
+            "scan {i}"
+        );
+        swept += by_auto.1;
+        forced += by_sweep.1;
+    }
+    assert!(swept > n / 4, "{swept} of {n} scans swept");
+    assert!(forced > n / 2, "{forced} of {n} scans swept when forced");
 }

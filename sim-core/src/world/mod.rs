@@ -25,7 +25,7 @@ use crate::circuit::Circuit;
 use crate::collision::{CollisionMode, obb_hits_map, obb_overlap};
 use crate::dynamics::Vehicle;
 use crate::geometry::{Obb, Pose};
-use crate::lidar::{Lidar, ScanPath, ScanPathError};
+use crate::lidar::{Lidar, ScanAlgorithm, ScanPath, ScanPathError};
 use crate::rng::Rng;
 use crate::track::LapCounter;
 
@@ -86,15 +86,21 @@ impl World {
         self.lidar.path()
     }
 
+    /// Takes this world's LIDAR scans by `algorithm` (see [`Lidar::with_algorithm`]): the
+    /// same bits, another speed.
+    pub fn set_scan_algorithm(&mut self, algorithm: ScanAlgorithm) {
+        self.lidar = Arc::new((*self.lidar).clone().with_algorithm(algorithm));
+    }
+
     /// Takes this world's LIDAR scans by the angular sweep over wall faces (`on`) or by
-    /// the march alone (see [`Lidar::with_sweep`]): the same bits, another speed.
+    /// the march alone (see [`Lidar::with_sweep`]).
     pub fn set_scan_sweep(&mut self, on: bool) {
         self.lidar = Arc::new((*self.lidar).clone().with_sweep(on));
     }
 
-    /// Whether this world's scans take the angular sweep.
-    pub fn scan_sweeps(&self) -> bool {
-        self.lidar.sweeps()
+    /// How this world's scans are computed.
+    pub fn scan_algorithm(&self) -> ScanAlgorithm {
+        self.lidar.algorithm()
     }
 
     pub fn num_agents(&self) -> usize {

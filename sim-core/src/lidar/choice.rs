@@ -1,0 +1,268 @@
+//! The choice between the angular sweep and the march when a LIDAR is left to choose
+//! ([`ScanAlgorithm::Auto`]): both give the same bits, and which is faster depends on the
+//! map and the CPU (on AVX-512 CPUs the march is the faster on some real tracks, the sweep
+//! on others and on every map measured with AVX2 alone; `docs/performance-scan.md`).
+//!
+//! Each thread keeps, per map, code path and beam count it scans, a trial of both: the
+//! first `2 * TRIAL` scans alternate between them and are timed, and the one with the
+//! lower median time takes the scans after it, until the next trial `PERIOD` scans
+//! later (so that a change of scene, more cars in view say, is seen). The timing only
+//! picks which of two bit-identical computations runs: results never depend on it.
+
+use super::ScanAlgorithm;
+
+/// Scans of each algorithm in a trial.
+pub(super) const TRIAL: usize = 16;
+/// Scans from the start of one trial to the start of the next, per map.
+pub(super) const PERIOD: u64 = 2048;
+/// Maps (with path and beam count) remembered per thread; the least recently scanned is
+/// forgotten first.
+const KEYS: usize = 8;
+
+/// What a choice is kept for: the map (by address), the code path and the beam count.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Key {
+    pub map: usize,
+    pub path: u8,
+    pub beams: usize,
+}
+
+/// One map's trials.
+struct Entry {
+    key: Key,
+    /// Scans of this key since it was first seen.
+    scans: u64,
+    /// The algorithm outside trials: the sweep's result until the first trial ends.
+    sweep: bool,
+    /// When this key was last scanned (the chooser's own tick).
+    used: u64,
+    /// The current trial's times in nanoseconds: `[march, sweep]`.
+    times: [[u64; TRIAL]; 2],
+}
+
+/// The next scan's algorithm, and the trial slot to time it in, if it is one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Pick {
+    pub sweep: bool,
+    pub trial: Option<(usize, usize)>,
+}
+
+/// A thread's choices (see the module doc) and its scans by algorithm.
+pub(super) struct Choice {
+    entries: Vec<Entry>,
+    tick: u64,
+    /// This thread's scans taken by the march and by the sweep, whatever the mode.
+    pub counts: [u64; 2],
+}
+
+impl Choice {
+    pub(super) const fn new() -> Choice {
+        Choice {
+            entries: Vec::new(),
+            tick: 0,
+            counts: [0; 2],
+        }
+    }
+
+    /// The algorithm of the next scan of `key` by a LIDAR set to `algorithm`.
+    pub(super) fn pick(&mut self, algorithm: ScanAlgorithm, key: Key) -> Pick {
+        match algorithm {
+            ScanAlgorithm::Sweep => {
+                return Pick {
+                    sweep: true,
+                    trial: None,
+                };
+            }
+            ScanAlgorithm::March => {
+                return Pick {
+                    sweep: false,
+                    trial: None,
+                };
+            }
+            ScanAlgorithm::Auto => {}
+        }
+        self.tick += 1;
+        let e = match self.entries.iter().position(|e| e.key == key) {
+            Some(e) => e,
+            None if self.entries.len() < KEYS => {
+                self.entries.push(Entry::new(key));
+                self.entries.len() - 1
+            }
+            None => {
+                let (oldest, _) = self
+                    .entries
+                    .iter()
+                    .enumerate()
+                    .min_by_key(|(_, e)| e.used)
+                    .expect("KEYS > 0 entries");
+                self.entries[oldest] = Entry::new(key);
+                oldest
+            }
+        };
+        let entry = &mut self.entries[e];
+        entry.used = self.tick;
+        let phase = (entry.scans % PERIOD) as usize;
+        entry.scans += 1;
+        if phase < 2 * TRIAL {
+            Pick {
+                sweep: phase.is_multiple_of(2),
+                trial: Some((e, phase)),
+            }
+        } else {
+            Pick {
+                sweep: entry.sweep,
+                trial: None,
+            }
+        }
+    }
+
+    /// Records that a scan picked by [`Choice::pick`] took `nanos` in trial slot `slot`;
+    /// the trial's last scan settles the choice.
+    pub(super) fn timed(&mut self, (e, phase): (usize, usize), nanos: u64) {
+        let entry = &mut self.entries[e];
+        entry.times[usize::from(phase.is_multiple_of(2))][phase / 2] = nanos;
+        if phase == 2 * TRIAL - 1 {
+            let [march, sweep] = &mut entry.times;
+            entry.sweep = median(sweep) <= median(march);
+        }
+    }
+}
+
+impl Entry {
+    fn new(key: Key) -> Entry {
+        Entry {
+            key,
+            scans: 0,
+            sweep: true,
+            used: 0,
+            times: [[0; TRIAL]; 2],
+        }
+    }
+}
+
+/// The median of `v` (the upper one of an even count), sorting it.
+fn median(v: &mut [u64; TRIAL]) -> u64 {
+    v.sort_unstable();
+    v[TRIAL / 2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn key(map: usize) -> Key {
+        Key {
+            map,
+            path: 1,
+            beams: 1080,
+        }
+    }
+
+    /// Runs `scans` scans of `k`, the sweep taking `sweep_ns` and the march `march_ns`;
+    /// returns how many took the sweep.
+    fn run(c: &mut Choice, k: Key, scans: u64, sweep_ns: u64, march_ns: u64) -> u64 {
+        let mut swept = 0;
+        for _ in 0..scans {
+            let p = c.pick(ScanAlgorithm::Auto, k);
+            swept += p.sweep as u64;
+            if let Some(t) = p.trial {
+                c.timed(t, if p.sweep { sweep_ns } else { march_ns });
+            }
+        }
+        swept
+    }
+
+    #[test]
+    fn the_faster_algorithm_takes_the_scans_after_a_trial() {
+        let mut c = Choice::new();
+        // the trial alternates, then the faster one takes every scan
+        assert_eq!(run(&mut c, key(1), 2 * TRIAL as u64, 10, 20), TRIAL as u64);
+        assert_eq!(run(&mut c, key(1), 1000, 10, 20), 1000);
+        let mut c = Choice::new();
+        assert_eq!(run(&mut c, key(1), 2 * TRIAL as u64, 20, 10), TRIAL as u64);
+        assert_eq!(run(&mut c, key(1), 1000, 20, 10), 0);
+        // a tie goes to the sweep
+        let mut c = Choice::new();
+        run(&mut c, key(1), 2 * TRIAL as u64, 10, 10);
+        assert_eq!(run(&mut c, key(1), 10, 10, 10), 10);
+    }
+
+    #[test]
+    fn the_median_ignores_a_few_slow_scans() {
+        let mut c = Choice::new();
+        let k = key(1);
+        for i in 0..2 * TRIAL {
+            let p = c.pick(ScanAlgorithm::Auto, k);
+            let t = p.trial.expect("in the trial");
+            // the sweep is faster but three of its scans were interrupted
+            let ns = if p.sweep {
+                if i < 6 { 1_000_000 } else { 10 }
+            } else {
+                20
+            };
+            c.timed(t, ns);
+        }
+        assert!(c.pick(ScanAlgorithm::Auto, k).sweep);
+    }
+
+    #[test]
+    fn trials_come_again_and_follow_a_change() {
+        let mut c = Choice::new();
+        let k = key(7);
+        assert_eq!(run(&mut c, k, PERIOD, 10, 20), PERIOD - TRIAL as u64);
+        // the scene changes: the march is now the faster; the next trial sees it
+        let swept = run(&mut c, k, PERIOD - 100, 20, 10);
+        assert_eq!(swept, TRIAL as u64);
+        assert_eq!(run(&mut c, k, 100, 20, 10), 0);
+        // and the one after it
+        assert_eq!(run(&mut c, k, PERIOD, 10, 20), PERIOD - TRIAL as u64);
+    }
+
+    #[test]
+    fn choices_are_kept_per_map_path_and_beams_and_the_oldest_forgotten() {
+        let mut c = Choice::new();
+        run(&mut c, key(1), 2 * TRIAL as u64, 20, 10);
+        let other_path = Key { path: 2, ..key(1) };
+        let other_beams = Key {
+            beams: 100,
+            ..key(1)
+        };
+        run(&mut c, other_path, 2 * TRIAL as u64, 10, 20);
+        run(&mut c, other_beams, 2 * TRIAL as u64, 10, 20);
+        assert!(!c.pick(ScanAlgorithm::Auto, key(1)).sweep);
+        assert!(c.pick(ScanAlgorithm::Auto, other_path).sweep);
+        assert!(c.pick(ScanAlgorithm::Auto, other_beams).sweep);
+        // KEYS more maps: key(1) was scanned before them all and is forgotten, so it
+        // starts a new trial
+        for m in 100..100 + KEYS {
+            run(&mut c, key(m), 1, 10, 20);
+        }
+        let p = c.pick(ScanAlgorithm::Auto, key(1));
+        assert_eq!(p.trial, Some((p.trial.unwrap().0, 0)));
+        assert_eq!(c.entries.len(), KEYS);
+    }
+
+    #[test]
+    fn forced_algorithms_are_not_timed() {
+        let mut c = Choice::new();
+        for _ in 0..3 {
+            let p = c.pick(ScanAlgorithm::Sweep, key(1));
+            assert_eq!(
+                p,
+                Pick {
+                    sweep: true,
+                    trial: None
+                }
+            );
+            let p = c.pick(ScanAlgorithm::March, key(1));
+            assert_eq!(
+                p,
+                Pick {
+                    sweep: false,
+                    trial: None
+                }
+            );
+        }
+        assert!(c.entries.is_empty());
+    }
+}
