@@ -4,7 +4,7 @@ both with full 1080-beam scans, through a broker and a worker on loopback.
 The f1tenth_gym reference steps about 3,300 steps/s for one car in-process on this
 machine (its scan is the cost); the goal for the 64-env vector env is 20x that.
 
-    python benchmarks/env_steps.py [--endpoint tcp://HOST:PORT] [--seconds 5]
+    python benchmarks/env_steps.py [--endpoint tcp://HOST:PORT] [--seconds 5] [--map M]
 
 With a local server (no --endpoint) it also reports the CPU time that this process and
 each thread of the server spent (Linux): env-steps per CPU-second is the figure of
@@ -80,6 +80,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--envs", type=int, default=64)
     ap.add_argument("--threads", type=int, default=0, help="worker threads of a local serve")
+    ap.add_argument("--map", default="lakeside",
+                    help="map name, map directory or map YAML (default: lakeside)")
     args = ap.parse_args(argv)
     server = None
     endpoint = args.endpoint
@@ -89,7 +91,7 @@ def main(argv: list[str] | None = None) -> dict:
         endpoint = server.endpoint
         pid = server.process.pid if os.path.exists("/proc/self/stat") else None
     try:
-        kw = dict(num_beams=1080, time_limit=36000.0, laps=100)
+        kw = dict(map=args.map, num_beams=1080, time_limit=36000.0, laps=100)
         single = paddock.F110Env(endpoint, **kw)
         try:
             one, one_cpu, one_ms = measure(single, 1, args.seconds, pid)

@@ -3,16 +3,21 @@
 //! map and the CPU (on AVX-512 CPUs the march is the faster on some real tracks, the sweep
 //! on others and on every map measured with AVX2 alone; `docs/performance-scan.md`).
 //!
-//! Each thread keeps, per map, code path and beam count it scans, a trial of both: the
-//! first `2 * TRIAL` scans alternate between them and are timed, and the one with the
-//! lower median time takes the scans after it, until the next trial `PERIOD` scans
+//! Each thread keeps, per map, code path and beam count it scans, a trial of both: each
+//! of its first `TRIAL` scans is computed by both algorithms in turn (which one first
+//! alternates), each timed, so that both are timed on the same scans whatever the
+//! scenes (a vector env's consecutive scans are of different cars); the one with the
+//! lower total time, leaving out the `DROP` scans that took longest in all (a thread
+//! interrupted mid-scan), takes the scans after, until the next trial `PERIOD` scans
 //! later (so that a change of scene, more cars in view say, is seen). The timing only
 //! picks which of two bit-identical computations runs: results never depend on it.
 
 use super::ScanAlgorithm;
 
-/// Scans of each algorithm in a trial.
+/// Scans in a trial, each computed by both algorithms.
 pub(super) const TRIAL: usize = 16;
+/// The trial's scans left out of the comparison: those that took longest in all.
+const DROP: usize = 2;
 /// Scans from the start of one trial to the start of the next, per map.
 pub(super) const PERIOD: u64 = 2048;
 /// Maps (with path and beam count) remembered per thread; the least recently scanned is
@@ -36,11 +41,12 @@ struct Entry {
     sweep: bool,
     /// When this key was last scanned (the chooser's own tick).
     used: u64,
-    /// The current trial's times in nanoseconds: `[march, sweep]`.
-    times: [[u64; TRIAL]; 2],
+    /// The current trial's times in nanoseconds, `[march, sweep]` per scan.
+    times: [[u64; 2]; TRIAL],
 }
 
-/// The next scan's algorithm, and the trial slot to time it in, if it is one.
+/// The next scan's algorithm (the first of the two in a trial), and its trial slot, if
+/// it is one (the entry and the scan's index in the trial).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) struct Pick {
     pub sweep: bool,
@@ -103,7 +109,7 @@ impl Choice {
         entry.used = self.tick;
         let phase = (entry.scans % PERIOD) as usize;
         entry.scans += 1;
-        if phase < 2 * TRIAL {
+        if phase < TRIAL {
             Pick {
                 sweep: phase.is_multiple_of(2),
                 trial: Some((e, phase)),
@@ -116,14 +122,13 @@ impl Choice {
         }
     }
 
-    /// Records that a scan picked by [`Choice::pick`] took `nanos` in trial slot `slot`;
-    /// the trial's last scan settles the choice.
-    pub(super) fn timed(&mut self, (e, phase): (usize, usize), nanos: u64) {
+    /// Records that trial scan `slot` (from [`Choice::pick`]) took `march` nanoseconds by
+    /// the march and `sweep` by the sweep; the trial's last scan settles the choice.
+    pub(super) fn timed(&mut self, (e, phase): (usize, usize), march: u64, sweep: u64) {
         let entry = &mut self.entries[e];
-        entry.times[usize::from(phase.is_multiple_of(2))][phase / 2] = nanos;
-        if phase == 2 * TRIAL - 1 {
-            let [march, sweep] = &mut entry.times;
-            entry.sweep = median(sweep) <= median(march);
+        entry.times[phase] = [march, sweep];
+        if phase == TRIAL - 1 {
+            entry.sweep = sweep_faster(&mut entry.times);
         }
     }
 }
@@ -135,15 +140,18 @@ impl Entry {
             scans: 0,
             sweep: true,
             used: 0,
-            times: [[0; TRIAL]; 2],
+            times: [[0; 2]; TRIAL],
         }
     }
 }
 
-/// The median of `v` (the upper one of an even count), sorting it.
-fn median(v: &mut [u64; TRIAL]) -> u64 {
-    v.sort_unstable();
-    v[TRIAL / 2]
+/// Whether the sweep took no longer than the march over a trial's scans `[march, sweep]`,
+/// leaving out the [`DROP`] scans that took longest by both together (sorting them).
+fn sweep_faster(times: &mut [[u64; 2]; TRIAL]) -> bool {
+    times.sort_unstable_by_key(|&[m, s]| m.saturating_add(s));
+    let kept = &times[..TRIAL - DROP];
+    let total = |k: usize| kept.iter().fold(0u64, |a, t| a.saturating_add(t[k]));
+    total(1) <= total(0)
 }
 
 #[cfg(test)]
@@ -158,15 +166,15 @@ mod tests {
         }
     }
 
-    /// Runs `scans` scans of `k`, the sweep taking `sweep_ns` and the march `march_ns`;
-    /// returns how many took the sweep.
+    /// Runs `scans` scans of `k`, each trial scan taking `sweep_ns` by the sweep and
+    /// `march_ns` by the march; returns how many took the sweep outside trials.
     fn run(c: &mut Choice, k: Key, scans: u64, sweep_ns: u64, march_ns: u64) -> u64 {
         let mut swept = 0;
         for _ in 0..scans {
             let p = c.pick(ScanAlgorithm::Auto, k);
-            swept += p.sweep as u64;
-            if let Some(t) = p.trial {
-                c.timed(t, if p.sweep { sweep_ns } else { march_ns });
+            match p.trial {
+                Some(t) => c.timed(t, march_ns, sweep_ns),
+                None => swept += u64::from(p.sweep),
             }
         }
         swept
@@ -175,32 +183,39 @@ mod tests {
     #[test]
     fn the_faster_algorithm_takes_the_scans_after_a_trial() {
         let mut c = Choice::new();
-        // the trial alternates, then the faster one takes every scan
-        assert_eq!(run(&mut c, key(1), 2 * TRIAL as u64, 10, 20), TRIAL as u64);
+        // the trial: each scan by both, which one first alternating
+        for i in 0..TRIAL {
+            let p = c.pick(ScanAlgorithm::Auto, key(1));
+            assert_eq!(p.trial.map(|t| t.1), Some(i));
+            assert_eq!(p.sweep, i % 2 == 0);
+            c.timed(p.trial.unwrap(), 20, 10);
+        }
         assert_eq!(run(&mut c, key(1), 1000, 10, 20), 1000);
         let mut c = Choice::new();
-        assert_eq!(run(&mut c, key(1), 2 * TRIAL as u64, 20, 10), TRIAL as u64);
-        assert_eq!(run(&mut c, key(1), 1000, 20, 10), 0);
+        assert_eq!(run(&mut c, key(1), 1000 + TRIAL as u64, 20, 10), 0);
         // a tie goes to the sweep
         let mut c = Choice::new();
-        run(&mut c, key(1), 2 * TRIAL as u64, 10, 10);
-        assert_eq!(run(&mut c, key(1), 10, 10, 10), 10);
+        assert_eq!(run(&mut c, key(1), 10 + TRIAL as u64, 10, 10), 10);
     }
 
     #[test]
-    fn the_median_ignores_a_few_slow_scans() {
-        let mut c = Choice::new();
+    fn the_totals_leave_out_the_slowest_scans_and_weigh_the_rest() {
         let k = key(1);
-        for i in 0..2 * TRIAL {
-            let p = c.pick(ScanAlgorithm::Auto, k);
-            let t = p.trial.expect("in the trial");
-            // the sweep is faster but three of its scans were interrupted
-            let ns = if p.sweep {
-                if i < 6 { 1_000_000 } else { 10 }
-            } else {
-                20
-            };
-            c.timed(t, ns);
+        // The sweep is faster, but two scans were interrupted while it ran: left out.
+        let mut c = Choice::new();
+        for i in 0..TRIAL {
+            let t = c.pick(ScanAlgorithm::Auto, k).trial.unwrap();
+            let sweep = if i < DROP { 1_000_000 } else { 10 };
+            c.timed(t, 20, sweep);
+        }
+        assert!(c.pick(ScanAlgorithm::Auto, k).sweep);
+        // The march is faster on most scans by a little, the sweep on a few by much: the
+        // totals decide (the sweep), not the count of scans each won.
+        let mut c = Choice::new();
+        for i in 0..TRIAL {
+            let t = c.pick(ScanAlgorithm::Auto, k).trial.unwrap();
+            let (march, sweep) = if i < 4 { (100, 40) } else { (50, 52) };
+            c.timed(t, march, sweep);
         }
         assert!(c.pick(ScanAlgorithm::Auto, k).sweep);
     }
@@ -211,8 +226,7 @@ mod tests {
         let k = key(7);
         assert_eq!(run(&mut c, k, PERIOD, 10, 20), PERIOD - TRIAL as u64);
         // the scene changes: the march is now the faster; the next trial sees it
-        let swept = run(&mut c, k, PERIOD - 100, 20, 10);
-        assert_eq!(swept, TRIAL as u64);
+        assert_eq!(run(&mut c, k, PERIOD - 100, 20, 10), 0);
         assert_eq!(run(&mut c, k, 100, 20, 10), 0);
         // and the one after it
         assert_eq!(run(&mut c, k, PERIOD, 10, 20), PERIOD - TRIAL as u64);
@@ -221,14 +235,14 @@ mod tests {
     #[test]
     fn choices_are_kept_per_map_path_and_beams_and_the_oldest_forgotten() {
         let mut c = Choice::new();
-        run(&mut c, key(1), 2 * TRIAL as u64, 20, 10);
+        run(&mut c, key(1), TRIAL as u64, 20, 10);
         let other_path = Key { path: 2, ..key(1) };
         let other_beams = Key {
             beams: 100,
             ..key(1)
         };
-        run(&mut c, other_path, 2 * TRIAL as u64, 10, 20);
-        run(&mut c, other_beams, 2 * TRIAL as u64, 10, 20);
+        run(&mut c, other_path, TRIAL as u64, 10, 20);
+        run(&mut c, other_beams, TRIAL as u64, 10, 20);
         assert!(!c.pick(ScanAlgorithm::Auto, key(1)).sweep);
         assert!(c.pick(ScanAlgorithm::Auto, other_path).sweep);
         assert!(c.pick(ScanAlgorithm::Auto, other_beams).sweep);
@@ -238,7 +252,7 @@ mod tests {
             run(&mut c, key(m), 1, 10, 20);
         }
         let p = c.pick(ScanAlgorithm::Auto, key(1));
-        assert_eq!(p.trial, Some((p.trial.unwrap().0, 0)));
+        assert_eq!(p.trial.map(|t| t.1), Some(0));
         assert_eq!(c.entries.len(), KEYS);
     }
 

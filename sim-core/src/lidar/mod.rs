@@ -55,8 +55,8 @@ thread_local! {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ScanAlgorithm {
-    /// Each thread times both on its first scans of a map (and again every few thousand
-    /// scans) and takes the faster.
+    /// Each thread times both on its first scans of a map (and again every 2,048 scans)
+    /// and takes the faster.
     #[default]
     Auto,
     /// The angular sweep over the map's wall faces.
@@ -89,7 +89,8 @@ impl std::fmt::Display for ScanAlgorithm {
 }
 
 /// This thread's scans so far by the algorithm that computed them: `(march, sweep)`
-/// (a scan the sweep does not apply to, from off the map say, counts as marched).
+/// (a scan the sweep does not apply to, from off the map say, counts as marched; a scan
+/// of a trial of [`ScanAlgorithm::Auto`] is computed, and counted, by both).
 pub fn thread_scans_by_algorithm() -> (u64, u64) {
     SCAN_CHOICE.with_borrow(|c| (c.counts[0], c.counts[1]))
 }
@@ -296,15 +297,23 @@ impl Lidar {
             sweep: pick.sweep,
             boxes: &boxes,
         };
-        let start = pick.trial.map(|_| std::time::Instant::now());
-        let swept = self.scan_on(map, &job, out, path);
-        SCAN_CHOICE.with_borrow_mut(|c| {
-            c.counts[usize::from(swept)] += 1;
-            if let (Some(trial), Some(start)) = (pick.trial, start) {
-                let nanos = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
-                c.timed(trial, nanos);
-            }
-        });
+        let Some(trial) = pick.trial else {
+            let swept = self.scan_on(map, &job, out, path);
+            SCAN_CHOICE.with_borrow_mut(|c| c.counts[usize::from(swept)] += 1);
+            return;
+        };
+        // A trial scan: by both algorithms, the picked one first, each timed (the same
+        // bits either way, so `out` holds the scan whichever ran last).
+        let mut nanos = [0u64; 2];
+        for sweep in [pick.sweep, !pick.sweep] {
+            let job = ScanJob { sweep, ..job };
+            let start = std::time::Instant::now();
+            let swept = self.scan_on(map, &job, out, path);
+            nanos[usize::from(sweep)] =
+                u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+            SCAN_CHOICE.with_borrow_mut(|c| c.counts[usize::from(swept)] += 1);
+        }
+        SCAN_CHOICE.with_borrow_mut(|c| c.timed(trial, nanos[0], nanos[1]));
     }
 
     /// The scan of `job` on the widest of `path` and the paths `map` allows; whether the
