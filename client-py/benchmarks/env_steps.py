@@ -80,6 +80,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--envs", type=int, default=64)
     ap.add_argument("--threads", type=int, default=0, help="worker threads of a local serve")
+    ap.add_argument("--transport", default="auto", choices=["auto", "ipc", "tcp"],
+                    help="how a local serve listens (default: auto, see paddock.LocalServer)")
     ap.add_argument("--map", default="lakeside",
                     help="map name, map directory or map YAML (default: lakeside)")
     args = ap.parse_args(argv)
@@ -87,7 +89,7 @@ def main(argv: list[str] | None = None) -> dict:
     endpoint = args.endpoint
     pid = None
     if endpoint is None:
-        server = paddock.LocalServer(threads=args.threads).start()
+        server = paddock.LocalServer(threads=args.threads, transport=args.transport).start()
         endpoint = server.endpoint
         pid = server.process.pid if os.path.exists("/proc/self/stat") else None
     try:

@@ -1,5 +1,9 @@
-"""A local `paddock serve` (broker and workers in one process on loopback) that a
-learner on one machine connects to; started and stopped by the env or the tests.
+"""A local `paddock serve` (broker and workers in one process) that a learner on one
+machine connects to; started and stopped by the env or the tests. On Linux it listens on
+a Unix domain socket in the abstract namespace (``ipc://@paddock-...``: no file to
+clean up, and cheaper per message than loopback TCP: 5-12 % more env-steps per second
+for a 64-env vector env on one core, docs/performance-vecenv.md); elsewhere on a free
+loopback TCP port.
 
 The server is given this process's id (``--parent-pid``) and stops by itself once this
 process is no longer its parent, so a learner that crashes or is killed (SIGKILL
@@ -9,14 +13,18 @@ Linux's parent-death signal, which fires when the *thread* that started it ends.
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 import signal
 import socket
 import subprocess
+import sys
 import sysconfig
 import tempfile
 import time
 from pathlib import Path
+
+import zmq
 
 from . import errors
 from .transport import Connection
@@ -52,6 +60,24 @@ def find_paddock() -> str:
     )
 
 
+TRANSPORTS = ("auto", "ipc", "tcp")
+
+
+def local_endpoint(transport: str = "auto") -> str:
+    """A fresh endpoint for a local server: ``ipc://@paddock-<pid>-<random>`` (a Unix
+    domain socket in Linux's abstract namespace) for ``"ipc"``, and for ``"auto"`` where
+    that is available; else ``tcp://127.0.0.1:<free port>``."""
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport = {transport!r} is not one of {', '.join(TRANSPORTS)}")
+    abstract = sys.platform.startswith("linux") and zmq.has("ipc")
+    if transport == "ipc" and not abstract:
+        raise ValueError(f"transport = 'ipc' needs Linux (abstract Unix domain sockets); "
+                         f"this is {sys.platform}: use 'tcp' or 'auto'")
+    if transport != "tcp" and abstract:
+        return f"ipc://@paddock-{os.getpid()}-{secrets.token_hex(8)}"
+    return f"tcp://127.0.0.1:{free_port()}"
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -72,10 +98,15 @@ def stop_process(p: subprocess.Popen) -> None:
 
 
 class LocalServer:
-    """`paddock serve` on a free loopback port; ``endpoint`` is where clients connect."""
+    """`paddock serve` for this machine's learners; ``endpoint`` is where clients connect
+    (see :func:`local_endpoint` for ``transport``)."""
 
     def __init__(self, threads: int = 0, binary: str | None = None,
-                 start_timeout: float = 60.0, extra_args: list[str] | None = None) -> None:
+                 start_timeout: float = 60.0, extra_args: list[str] | None = None,
+                 transport: str = "auto") -> None:
+        if transport not in TRANSPORTS:
+            raise ValueError(f"transport = {transport!r} is not one of {', '.join(TRANSPORTS)}")
+        self.transport = transport
         self.binary = binary or find_paddock()
         self.threads = threads
         self.start_timeout = start_timeout
@@ -88,8 +119,7 @@ class LocalServer:
     def start(self) -> "LocalServer":
         last = ""
         for _ in range(3):  # a port taken between probing and binding: try another
-            port = free_port()
-            self.endpoint = f"tcp://127.0.0.1:{port}"
+            self.endpoint = local_endpoint(self.transport)
             # the server stops when this process is gone, even killed: no orphans
             args = [self.binary, "serve", "--bind", self.endpoint,
                     "--parent-pid", str(os.getpid())]

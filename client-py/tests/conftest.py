@@ -1,5 +1,6 @@
-"""Fixtures: one real `paddock serve` (broker + workers on loopback) for the whole test
-run, on a free port, stopped at the end."""
+"""Fixtures: one real `paddock serve` (broker + workers) for the whole test run, started
+as learners start it (on Linux on an abstract Unix domain socket, else on a free loopback
+port), stopped at the end."""
 
 from __future__ import annotations
 
