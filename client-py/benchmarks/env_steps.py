@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 import paddock
+from paddock.server import TRANSPORTS
 
 REFERENCE_STEPS_PER_S = 3300.0
 
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--envs", type=int, default=64)
     ap.add_argument("--threads", type=int, default=0, help="worker threads of a local serve")
-    ap.add_argument("--transport", default="auto", choices=["auto", "ipc", "tcp"],
+    ap.add_argument("--transport", default="auto", choices=TRANSPORTS,
                     help="how a local serve listens (default: auto, see paddock.LocalServer)")
     ap.add_argument("--map", default="lakeside",
                     help="map name, map directory or map YAML (default: lakeside)")

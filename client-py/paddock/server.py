@@ -63,12 +63,16 @@ def find_paddock() -> str:
 TRANSPORTS = ("auto", "ipc", "tcp")
 
 
+def _check_transport(transport: str) -> None:
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport = {transport!r} is not one of {', '.join(TRANSPORTS)}")
+
+
 def local_endpoint(transport: str = "auto") -> str:
     """A fresh endpoint for a local server: ``ipc://@paddock-<pid>-<random>`` (a Unix
     domain socket in Linux's abstract namespace) for ``"ipc"``, and for ``"auto"`` where
     that is available; else ``tcp://127.0.0.1:<free port>``."""
-    if transport not in TRANSPORTS:
-        raise ValueError(f"transport = {transport!r} is not one of {', '.join(TRANSPORTS)}")
+    _check_transport(transport)
     abstract = sys.platform.startswith("linux") and zmq.has("ipc")
     if transport == "ipc" and not abstract:
         raise ValueError(f"transport = 'ipc' needs Linux (abstract Unix domain sockets); "
@@ -104,8 +108,7 @@ class LocalServer:
     def __init__(self, threads: int = 0, binary: str | None = None,
                  start_timeout: float = 60.0, extra_args: list[str] | None = None,
                  transport: str = "auto") -> None:
-        if transport not in TRANSPORTS:
-            raise ValueError(f"transport = {transport!r} is not one of {', '.join(TRANSPORTS)}")
+        _check_transport(transport)
         self.transport = transport
         self.binary = binary or find_paddock()
         self.threads = threads

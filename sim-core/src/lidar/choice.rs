@@ -53,12 +53,13 @@ pub(super) struct Pick {
     pub trial: Option<(usize, usize)>,
 }
 
-/// A thread's choices (see the module doc) and its scans by algorithm.
+/// A thread's choices (see the module doc) and its scans.
 pub(super) struct Choice {
     entries: Vec<Entry>,
     tick: u64,
-    /// This thread's scans taken by the march and by the sweep, whatever the mode.
-    pub counts: [u64; 2],
+    /// This thread's scans so far, whatever the mode (a trial's scan twice: it is
+    /// computed by both algorithms).
+    pub scans: u64,
 }
 
 impl Choice {
@@ -66,12 +67,13 @@ impl Choice {
         Choice {
             entries: Vec::new(),
             tick: 0,
-            counts: [0; 2],
+            scans: 0,
         }
     }
 
     /// The algorithm of the next scan of `key` by a LIDAR set to `algorithm`.
     pub(super) fn pick(&mut self, algorithm: ScanAlgorithm, key: Key) -> Pick {
+        self.scans += 1;
         match algorithm {
             ScanAlgorithm::Sweep => {
                 return Pick {
@@ -110,6 +112,7 @@ impl Choice {
         let phase = (entry.scans % PERIOD) as usize;
         entry.scans += 1;
         if phase < TRIAL {
+            self.scans += 1;
             Pick {
                 sweep: phase.is_multiple_of(2),
                 trial: Some((e, phase)),

@@ -92,7 +92,11 @@ impl std::fmt::Display for ScanAlgorithm {
 /// (a scan the sweep does not apply to, from off the map say, counts as marched; a scan
 /// of a trial of [`ScanAlgorithm::Auto`] is computed, and counted, by both).
 pub fn thread_scans_by_algorithm() -> (u64, u64) {
-    SCAN_CHOICE.with_borrow(|c| (c.counts[0], c.counts[1]))
+    let scans = SCAN_CHOICE.with_borrow(|c| c.scans);
+    let sweep = SCAN_SWEEP.take();
+    let swept = sweep.as_ref().map_or(0, |s| s.swept);
+    SCAN_SWEEP.set(sweep);
+    (scans.saturating_sub(swept), swept)
 }
 
 /// LIDAR parameters. Defaults are those of the f1tenth_gym reference (Hokuyo UST-10LX).
@@ -298,8 +302,7 @@ impl Lidar {
             boxes: &boxes,
         };
         let Some(trial) = pick.trial else {
-            let swept = self.scan_on(map, &job, out, path);
-            SCAN_CHOICE.with_borrow_mut(|c| c.counts[usize::from(swept)] += 1);
+            self.scan_on(map, &job, out, path);
             return;
         };
         // A trial scan: by both algorithms, the picked one first, each timed (the same
@@ -308,29 +311,29 @@ impl Lidar {
         for sweep in [pick.sweep, !pick.sweep] {
             let job = ScanJob { sweep, ..job };
             let start = std::time::Instant::now();
-            let swept = self.scan_on(map, &job, out, path);
+            self.scan_on(map, &job, out, path);
             nanos[usize::from(sweep)] =
                 u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
-            SCAN_CHOICE.with_borrow_mut(|c| c.counts[usize::from(swept)] += 1);
         }
         SCAN_CHOICE.with_borrow_mut(|c| c.timed(trial, nanos[0], nanos[1]));
     }
 
-    /// The scan of `job` on the widest of `path` and the paths `map` allows; whether the
-    /// sweep took it.
-    fn scan_on(&self, map: &Map, job: &ScanJob, out: &mut [f64], path: ScanPath) -> bool {
+    /// The scan of `job` on the widest of `path` and the paths `map` allows.
+    fn scan_on(&self, map: &Map, job: &ScanJob, out: &mut [f64], path: ScanPath) {
         #[cfg(target_arch = "x86_64")]
         {
             if path >= ScanPath::Avx512 && march::avx512_usable(map) {
                 // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F and AVX2.
-                return unsafe { self.scan_avx512(map, job, out) };
+                unsafe { self.scan_avx512(map, job, out) };
+                return;
             }
             if path >= ScanPath::Avx && march::avx_usable(map) {
                 // SAFETY: `avx_usable` checked that the CPU supports AVX.
-                return unsafe { self.scan_avx(map, job, out, path.level()) };
+                unsafe { self.scan_avx(map, job, out, path.level()) };
+                return;
             }
         }
-        self.scan_chunks::<false>(map, job, out, 0)
+        self.scan_chunks::<false>(map, job, out, 0);
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX enabled, so that its simple per-beam loops
@@ -340,8 +343,8 @@ impl Lidar {
     /// The CPU must support AVX.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
-    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) -> bool {
-        self.scan_chunks::<true>(map, job, out, level)
+    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
+        self.scan_chunks::<true>(map, job, out, level);
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX-512 enabled (the march itself picks its
@@ -351,23 +354,17 @@ impl Lidar {
     /// The CPU must support AVX-512F and AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx2")]
-    unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) -> bool {
-        self.scan_chunks::<true>(map, job, out, 2)
+    unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
+        self.scan_chunks::<true>(map, job, out, 2);
     }
 
-    /// The scan by the sweep if `job` asks for it and it applies (then true), else the
-    /// beams in chunks: box limits, grid directions, the march (at most SIMD level
-    /// `level`, see [`ScanPath`]), metres.
+    /// The scan by the sweep if `job` asks for it and it applies, else the beams in
+    /// chunks: box limits, grid directions, the march (at most SIMD level `level`, see
+    /// [`ScanPath`]), metres.
     #[inline(always)]
-    fn scan_chunks<const AVX: bool>(
-        &self,
-        map: &Map,
-        job: &ScanJob,
-        out: &mut [f64],
-        level: u8,
-    ) -> bool {
+    fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
         if job.sweep && self.scan_sweep::<AVX>(map, job, out, level) {
-            return true;
+            return;
         }
         let n = out.len();
         // The ray batch (tens of KiB) is rewritten for every chunk, so one per thread
@@ -397,7 +394,6 @@ impl Lidar {
             start += len;
         }
         SCAN_BATCH.set(Some(batch));
-        false
     }
 
     /// The scan by the angular sweep (see `sweep`), the beams it leaves to the march

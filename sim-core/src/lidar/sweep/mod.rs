@@ -81,7 +81,8 @@ pub(super) struct Sweep {
     runs: avx::Runs,
     /// The beams [`Sweep::run`] leaves to the march.
     pub marched: Vec<u32>,
-    /// Scans swept and beams left to the march since this thread's first (for tests).
+    /// Scans swept and beams left to the march since this thread's first (for tests, and
+    /// `thread_scans_by_algorithm`).
     pub swept: u64,
     pub handed: u64,
 }
