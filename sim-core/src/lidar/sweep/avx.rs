@@ -1,12 +1,13 @@
 //! The sweep's AVX kernels: the runs' beam ranges, four runs at a time, and their
 //! crossings, four beams at a time (the same operations lane by lane as the portable
-//! code in `super`, so the same bits). The directions that bound the runs' beam ranges
-//! are taken in single precision and the ranges widened by its error bound: a range only
-//! has to hold every beam that can cross the run, and a beam that cannot changes nothing,
-//! so the bits stay the same.
+//! code in `super`, so the same bits), and the culling's maxima. The directions that
+//! bound the runs' and the blocks' beam ranges are taken in single precision and the
+//! ranges widened by its error bound: a range only has to hold every beam that can cross
+//! the run or see the block, and a beam that cannot changes nothing, so the bits stay the
+//! same.
 
 use std::arch::x86_64::*;
-use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+use std::f64::consts::PI;
 
 use super::{ANGLE_SLACK, EPS, Fan, LANES};
 
@@ -171,91 +172,65 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
     (l <= h).then_some((l as usize, h as usize))
 }
 
-/// `atan2_fast` on four lanes (the same operations, but y = -0.0 gives +pi where
-/// `atan2_fast` gives -pi on the negative x axis: both bound the same beams).
+/// The largest of `start` and `v` (none of them NaN): `super::max_of`, four lanes per
+/// instruction in two chains.
 ///
 /// # Safety
 /// The CPU must support AVX.
 #[target_feature(enable = "avx")]
 #[inline]
-unsafe fn atan2(y: __m256d, x: __m256d) -> __m256d {
-    let set = _mm256_set1_pd;
-    let sign = set(-0.0);
-    let (ax, ay) = (_mm256_andnot_pd(sign, x), _mm256_andnot_pd(sign, y));
-    let swap = _mm256_cmp_pd::<_CMP_GT_OQ>(ay, ax);
-    let num = _mm256_blendv_pd(ay, ax, swap);
-    let den = _mm256_blendv_pd(ax, ay, swap);
-    let red = _mm256_cmp_pd::<_CMP_GT_OQ>(num, _mm256_mul_pd(set(0.414_213_562_373_095), den));
-    let z = _mm256_div_pd(
-        _mm256_blendv_pd(num, _mm256_sub_pd(num, den), red),
-        _mm256_blendv_pd(den, _mm256_add_pd(num, den), red),
-    );
-    let z2 = _mm256_mul_pd(z, z);
-    let mut p = set(1.0 / 13.0);
-    for k in [
-        -1.0 / 11.0,
-        1.0 / 9.0,
-        -1.0 / 7.0,
-        1.0 / 5.0,
-        -1.0 / 3.0,
-        1.0,
-    ] {
-        p = _mm256_add_pd(set(k), _mm256_mul_pd(z2, p));
+pub(super) unsafe fn max_of(start: f64, v: &[f64]) -> f64 {
+    let (mut a, mut b) = (_mm256_set1_pd(start), _mm256_set1_pd(start));
+    let mut eights = v.chunks_exact(8);
+    for q in &mut eights {
+        // SAFETY: eight values.
+        unsafe {
+            a = _mm256_max_pd(a, _mm256_loadu_pd(q.as_ptr()));
+            b = _mm256_max_pd(b, _mm256_loadu_pd(q.as_ptr().add(4)));
+        }
     }
-    let a = _mm256_add_pd(_mm256_and_pd(red, set(FRAC_PI_4)), _mm256_mul_pd(z, p));
-    let a = _mm256_blendv_pd(a, _mm256_sub_pd(set(FRAC_PI_2), a), swap);
-    let a = _mm256_blendv_pd(
-        a,
-        _mm256_sub_pd(set(PI), a),
-        _mm256_cmp_pd::<_CMP_LT_OQ>(x, set(0.0)),
-    );
-    _mm256_blendv_pd(
-        a,
-        _mm256_sub_pd(set(0.0), a),
-        _mm256_cmp_pd::<_CMP_LT_OQ>(y, set(0.0)),
-    )
+    let mut rest = eights.remainder().chunks_exact(4);
+    for q in &mut rest {
+        // SAFETY: four values.
+        a = _mm256_max_pd(a, unsafe { _mm256_loadu_pd(q.as_ptr()) });
+    }
+    let m = _mm256_max_pd(a, b);
+    let h = _mm_max_pd(_mm256_castpd256_pd128(m), _mm256_extractf128_pd::<1>(m));
+    let h = _mm_max_sd(h, _mm_unpackhi_pd(h, h));
+    let max = |a: f64, b: f64| if b > a { b } else { a };
+    rest.remainder()
+        .iter()
+        .fold(_mm_cvtsd_f64(h), |a, &b| max(a, b))
 }
 
-/// The directions relative to the heading of the four corners `(x[k], y[k])` as seen from
-/// (gx, gy), by [`angles`].
+/// `super::box_angles` with AVX: the directions relative to the heading of the corners
+/// of the boxes `a` and `b` (each `[x0, y0, x1, y1]`) as seen from (gx, gy), eight at once
+/// by [`angles_ps`] (so within [`ANGLE_SLACK`] + [`ANGLE_ERR_PS`]).
 ///
 /// # Safety
 /// The CPU must support AVX.
 #[target_feature(enable = "avx")]
 #[inline]
-pub(super) unsafe fn corner_angles(
+pub(super) unsafe fn box_angles(
     fan: &Fan,
     gx: f64,
     gy: f64,
-    x: [f64; 4],
-    y: [f64; 4],
-) -> [f64; 4] {
-    // SAFETY: the arrays hold four values each.
-    let (vx, vy) = unsafe {
-        (
-            _mm256_sub_pd(_mm256_loadu_pd(x.as_ptr()), _mm256_set1_pd(gx)),
-            _mm256_sub_pd(_mm256_loadu_pd(y.as_ptr()), _mm256_set1_pd(gy)),
-        )
-    };
-    let mut out = [0.0; 4];
-    // SAFETY: `out` holds four values; the CPU has AVX (this function's contract).
-    unsafe { _mm256_storeu_pd(out.as_mut_ptr(), angles(fan, vx, vy)) };
-    out
-}
-
-/// The directions of the vectors (vx, vy) relative to the heading, four at a time
-/// (`Fan::angle`'s operations, by [`atan2`]).
-///
-/// # Safety
-/// The CPU must support AVX.
-#[target_feature(enable = "avx")]
-#[inline]
-unsafe fn angles(fan: &Fan, vx: __m256d, vy: __m256d) -> __m256d {
-    let (c, s) = (_mm256_set1_pd(fan.cos), _mm256_set1_pd(fan.sin));
-    let u = _mm256_add_pd(_mm256_mul_pd(vx, c), _mm256_mul_pd(vy, s));
-    let v = _mm256_sub_pd(_mm256_mul_pd(vy, c), _mm256_mul_pd(vx, s));
+    a: [f64; 4],
+    b: [f64; 4],
+) -> ([f64; 4], [f64; 4]) {
+    let set = _mm256_set_pd;
+    let (g, h) = (_mm256_set1_pd(gx), _mm256_set1_pd(gy));
+    let xs = |[x0, _, x1, _]: [f64; 4]| _mm256_sub_pd(set(x1, x0, x1, x0), g);
+    let ys = |[_, y0, _, y1]: [f64; 4]| _mm256_sub_pd(set(y1, y1, y0, y0), h);
     // SAFETY: the CPU has AVX (this function's contract).
-    unsafe { atan2(v, u) }
+    let (va, vb) = unsafe { angles_ps(fan, xs(a), ys(a), xs(b), ys(b)) };
+    let (mut out_a, mut out_b) = ([0.0; 4], [0.0; 4]);
+    // SAFETY: four values each.
+    unsafe {
+        _mm256_storeu_pd(out_a.as_mut_ptr(), va);
+        _mm256_storeu_pd(out_b.as_mut_ptr(), vb);
+    }
+    (out_a, out_b)
 }
 
 /// Radians: the error bound of [`angles_ps`] (at most 4.2e-5: the series' own 4.0e-5
@@ -264,7 +239,7 @@ pub(super) const ANGLE_ERR_PS: f64 = 5e-5;
 
 /// The directions relative to the heading of the vectors (x0, y0) and (x1, y1), four of
 /// each, within [`ANGLE_SLACK`] + [`ANGLE_ERR_PS`] of the exact ones (where
-/// [`angles`] is within `ANGLE_SLACK`): turned into the fan's frame in double precision,
+/// `Fan::angle` is within `ANGLE_SLACK`): turned into the fan's frame in double precision,
 /// then eight directions at once by [`atan2_ps`]. The vectors must not be (0, 0).
 ///
 /// # Safety
@@ -291,10 +266,11 @@ unsafe fn angles_ps(
     )
 }
 
-/// atan2(y, x) on eight single-precision lanes within 4.2e-5 radians: [`atan2`]'s
+/// atan2(y, x) on eight single-precision lanes within 4.2e-5 radians: `atan2_fast`'s
 /// octant reduction, a reciprocal refined by one Newton step instead of the division,
 /// and the series to z^7 (its error at |z| <= tan(pi/8) is under 4.0e-5). y = -0.0
-/// gives +pi on the negative x axis, as [`atan2`]. The argument must not be (0, 0).
+/// gives +pi on the negative x axis (`atan2_fast` -pi: both bound the same beams). The
+/// argument must not be (0, 0).
 ///
 /// # Safety
 /// The CPU must support AVX.

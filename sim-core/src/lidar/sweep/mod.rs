@@ -100,7 +100,7 @@ pub(super) struct Fan {
 
 impl Fan {
     /// The direction of the vector (vx, vy) relative to the heading, by [`atan2_fast`]
-    /// (`avx::angles` is the same four at a time).
+    /// (`avx::angles_ps` the same, eight at a time in single precision).
     #[inline(always)]
     fn angle(&self, vx: f64, vy: f64) -> f64 {
         let (c, s) = (self.cos, self.sin);
@@ -233,7 +233,7 @@ impl Sweep {
         let n = self.tmax.len();
         self.marched.clear();
         for (g, m) in self.group_max.iter_mut().enumerate() {
-            *m = max_of(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
+            *m = max_of::<AVX>(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
         }
         let supers = faces.blocks_x.div_ceil(SUPER) * faces.blocks_y.div_ceil(SUPER);
         if self.super_dead.len() < supers {
@@ -274,7 +274,7 @@ impl Sweep {
         let (ox, oy) = (gx as isize / b, gy as isize / b);
         let (bw, bh) = (faces.blocks_x as isize, faces.blocks_y as isize);
         let rings = ox.max(bw - 1 - ox).max(oy).max(bh - 1 - oy);
-        let mut reach = self.reach();
+        let mut reach = self.reach::<AVX>();
         for k in 0..=rings {
             // Ring k lies at least k - 1 blocks away (with a margin for rounding).
             if (k - 1) as f64 * BLOCK as f64 * (1.0 - 1e-9) - EPS > reach {
@@ -293,7 +293,7 @@ impl Sweep {
                     self.visit::<AVX>(faces, ox + k, by, gx, gy, fan, reach);
                 }
             }
-            reach = self.reach();
+            reach = self.reach::<AVX>();
         }
     }
 
@@ -316,8 +316,9 @@ impl Sweep {
     }
 
     /// The largest current range of any beam.
-    fn reach(&self) -> f64 {
-        max_of(0.0, &self.group_max)
+    #[inline(always)]
+    fn reach<const AVX: bool>(&self) -> f64 {
+        max_of::<AVX>(0.0, &self.group_max)
     }
 
     /// One block: culled by distance, then its runs crossed with the beams that can see
@@ -351,23 +352,26 @@ impl Sweep {
         if self.super_dead[si] == self.serial {
             return;
         }
-        if self.super_tested[si] != self.stamp {
+        let test_group = self.super_tested[si] != self.stamp;
+        let side = (SUPER * BLOCK) as f64;
+        let (sx0, sy0) = ((bx / SUPER) as f64 * side, (by / SUPER) as f64 * side);
+        let (sx1, sy1) = (sx0 + side, sy0 + side);
+        let group = [sx0, sy0, sx1, sy1];
+        // The directions of the block's corners, and of its group's when the group is to
+        // be tested.
+        let (group_angles, angles, slack) =
+            box_angles::<AVX>(fan, gx, gy, test_group.then_some(group), [x0, y0, x1, y1]);
+        if test_group {
             self.super_tested[si] = self.stamp;
-            let side = (SUPER * BLOCK) as f64;
-            let (sx0, sy0) = ((bx / SUPER) as f64 * side, (by / SUPER) as f64 * side);
-            let (sx1, sy1) = (sx0 + side, sy0 + side);
             let sex = (sx0 - gx).max(gx - sx1).max(0.0);
             let sey = (sy0 - gy).max(gy - sy1).max(0.0);
             let sd2 = sex * sex + sey * sey;
-            if beyond(
-                sd2,
-                self.seen::<AVX>(fan, gx, gy, [sx0, sy0, sx1, sy1], sex, sey),
-            ) {
+            if beyond(sd2, self.seen::<AVX>(fan, group_angles, slack, sex, sey)) {
                 self.super_dead[si] = self.serial;
                 return;
             }
         }
-        let far = self.seen::<AVX>(fan, gx, gy, [x0, y0, x1, y1], ex, ey);
+        let far = self.seen::<AVX>(fan, angles, slack, ex, ey);
         if beyond(d2, far) {
             return;
         }
@@ -389,21 +393,22 @@ impl Sweep {
             while bits != 0 {
                 let g = 64 * w + bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                self.group_max[g] = max_of(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
+                self.group_max[g] =
+                    max_of::<AVX>(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
             }
         }
     }
 
-    /// The largest current range of the beams that can see the box `[x0, x1] x [y0, y1]`,
-    /// `ex` and `ey` from (gx, gy) along x and y (from within a cell of the box, or inside
-    /// it, every beam may).
+    /// The largest current range of the beams that can see a box whose corners lie in
+    /// the directions `angles` (within `slack` radians, see [`box_angles`]), `ex` and `ey`
+    /// away from the origin along x and y (from within a cell of the box, or inside it,
+    /// every beam may).
     #[inline(always)]
     fn seen<const AVX: bool>(
         &self,
         fan: &Fan,
-        gx: f64,
-        gy: f64,
-        rect: [f64; 4],
+        angles: [f64; 4],
+        slack: f64,
         ex: f64,
         ey: f64,
     ) -> f64 {
@@ -411,7 +416,7 @@ impl Sweep {
         let ranges = if ex < 1.0 && ey < 1.0 {
             [0..n, 0..0]
         } else {
-            beams_seeing::<AVX>(fan, n, gx, gy, rect)
+            beams_seeing(fan, n, angles, slack)
         };
         // The largest range of the beams that can see the box.
         let mut far = 0.0f64;
@@ -420,7 +425,7 @@ impl Sweep {
                 continue;
             }
             let (g0, g1) = (beams.start / GROUP, (beams.end - 1) / GROUP);
-            far = max_of(far, &self.group_max[g0..=g1]);
+            far = max_of::<AVX>(far, &self.group_max[g0..=g1]);
         }
         far
     }
@@ -557,9 +562,16 @@ impl Sweep {
 
 /// The largest of `start` and `v` (none of them NaN), four lanes at a time: a fold one by
 /// one is a chain of dependent maxima, which the compiler keeps (it may not reorder a
-/// floating-point fold), and the culling maxima are measured after every block.
+/// floating-point fold), and the culling maxima are measured after every block. With
+/// `AVX` by [`avx::max_of`] (the compiler left this fold in two-lane and scalar
+/// maxima, a fifth of the sweep's own time).
 #[inline(always)]
-fn max_of(start: f64, v: &[f64]) -> f64 {
+fn max_of<const AVX: bool>(start: f64, v: &[f64]) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if AVX {
+        // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
+        return unsafe { avx::max_of(start, v) };
+    }
     let max = |a: f64, b: f64| if b > a { b } else { a };
     let mut lanes = [start; 4];
     let mut quads = v.chunks_exact(4);
@@ -576,8 +588,11 @@ fn max_of(start: f64, v: &[f64]) -> f64 {
 /// again after the block).
 #[inline(always)]
 fn mark_groups(dirty: &mut [u64], b0: usize, b1: usize) {
-    for g in b0 / GROUP..=b1 / GROUP {
-        dirty[g / 64] |= 1 << (g % 64);
+    let (g0, g1) = (b0 / GROUP, b1 / GROUP);
+    for (w, word) in dirty.iter_mut().enumerate().take(g1 / 64 + 1).skip(g0 / 64) {
+        let lo = if w == g0 / 64 { g0 % 64 } else { 0 };
+        let hi = if w == g1 / 64 { g1 % 64 } else { 63 };
+        *word |= (u64::MAX >> (63 - hi)) & (u64::MAX << lo);
     }
 }
 
@@ -647,29 +662,38 @@ impl Run {
     }
 }
 
-/// The beams (one or two index ranges) that can see the box `[x0, x1] x [y0, y1]` from
-/// (gx, gy) outside it: those between its corners' directions, with [`ANGLE_SLACK`] to
-/// spare on each side.
+/// The directions (relative to the heading) of the corners of the box `[x0, x1] x [y0,
+/// y1]` seen from (gx, gy), and first those of `group`'s if given (else zeros), and the
+/// radians by which they may be off: [`ANGLE_SLACK`] by [`Fan::angle`], more with `AVX`,
+/// which takes all eight at once in single precision (`avx::box_angles`). Beam ranges
+/// from them only have to hold every beam that can see the box, so the bits stay the
+/// same.
 #[inline(always)]
-fn beams_seeing<const AVX: bool>(
+fn box_angles<const AVX: bool>(
     fan: &Fan,
-    n: usize,
     gx: f64,
     gy: f64,
-    [x0, y0, x1, y1]: [f64; 4],
-) -> [std::ops::Range<usize>; 2] {
-    let (xs, ys) = ([x0, x1, x0, x1], [y0, y0, y1, y1]);
-    let mut angle = [0.0; 4];
+    group: Option<[f64; 4]>,
+    rect: [f64; 4],
+) -> ([f64; 4], [f64; 4], f64) {
     #[cfg(target_arch = "x86_64")]
     if AVX {
         // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
-        angle = unsafe { avx::corner_angles(fan, gx, gy, xs, ys) };
+        let (a, b) = unsafe { avx::box_angles(fan, gx, gy, group.unwrap_or(rect), rect) };
+        return (a, b, ANGLE_SLACK + avx::ANGLE_ERR_PS);
     }
-    if !AVX || cfg!(not(target_arch = "x86_64")) {
-        for k in 0..4 {
-            angle[k] = fan.angle(xs[k] - gx, ys[k] - gy);
-        }
-    }
+    let corners = |[x0, y0, x1, y1]: [f64; 4]| {
+        let (xs, ys) = ([x0, x1, x0, x1], [y0, y0, y1, y1]);
+        std::array::from_fn(|k| fan.angle(xs[k] - gx, ys[k] - gy))
+    };
+    (group.map_or([0.0; 4], corners), corners(rect), ANGLE_SLACK)
+}
+
+/// The beams (one or two index ranges) that can see a box from outside it whose corners
+/// lie in the directions `angle` (each within `slack` radians): those between them, with
+/// `slack` to spare on each side.
+#[inline(always)]
+fn beams_seeing(fan: &Fan, n: usize, angle: [f64; 4], slack: f64) -> [std::ops::Range<usize>; 2] {
     let lo = angle[0].min(angle[1]).min(angle[2].min(angle[3]));
     let hi = angle[0].max(angle[1]).max(angle[2].max(angle[3]));
     if hi - lo > PI {
@@ -684,20 +708,20 @@ fn beams_seeing<const AVX: bool>(
         );
         let (lo, hi) = (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)));
         [
-            beams_between(fan, n, lo, PI),
-            beams_between(fan, n, -PI, hi - 2.0 * PI),
+            beams_between(fan, n, lo, PI, slack),
+            beams_between(fan, n, -PI, hi - 2.0 * PI, slack),
         ]
     } else {
-        [beams_between(fan, n, lo, hi), 0..0]
+        [beams_between(fan, n, lo, hi, slack), 0..0]
     }
 }
 
 /// The beams of a fan of `n` whose directions lie between `a` and `z` (radians from the
-/// heading), with [`ANGLE_SLACK`] to spare on each side. Inlined, not a closure: the
+/// heading), with `slack` radians to spare on each side. Inlined, not a closure: the
 /// compiler kept a closure out of line and compiled it without AVX.
 #[inline(always)]
-fn beams_between(fan: &Fan, n: usize, a: f64, z: f64) -> std::ops::Range<usize> {
-    let slack = ANGLE_SLACK * fan.inv_inc;
+fn beams_between(fan: &Fan, n: usize, a: f64, z: f64, slack: f64) -> std::ops::Range<usize> {
+    let slack = slack * fan.inv_inc;
     let top = (n - 1) as f64;
     let first = ((a + fan.half_fov) * fan.inv_inc - slack).ceil().max(0.0);
     let last = ((z + fan.half_fov) * fan.inv_inc + slack).floor().min(top);
@@ -791,5 +815,92 @@ mod tests {
         }
         assert!(worst < 1e-6, "worst error {worst}");
         assert!(worst * 5.0 < ANGLE_SLACK);
+    }
+
+    #[test]
+    fn the_culling_maxima_are_the_largest_values_on_every_path() {
+        let mut rng = crate::rng::Rng::new(5);
+        for len in 0..70 {
+            let v: Vec<f64> = (0..len).map(|_| rng.uniform_range(0.0, 900.0)).collect();
+            for start in [0.0, 450.0, 1e9] {
+                let want = v.iter().fold(start, |a: f64, &b| a.max(b));
+                assert_eq!(
+                    max_of::<false>(start, &v),
+                    want,
+                    "{len} values from {start}"
+                );
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx") {
+                    assert_eq!(max_of::<true>(start, &v), want, "{len} values from {start}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn marking_groups_marks_exactly_the_groups_of_the_beams() {
+        let beams = 64 * GROUP * 3;
+        for (b0, b1) in [(0, 0), (0, beams - 1), (15, 16), (1000, 1030), (1023, 1024)]
+            .into_iter()
+            .chain(
+                (0..beams)
+                    .step_by(97)
+                    .map(|b| (b, (b + 777).min(beams - 1))),
+            )
+        {
+            let mut dirty = [0u64; 3];
+            mark_groups(&mut dirty, b0, b1);
+            for g in 0..beams / GROUP {
+                let want = (b0 / GROUP..=b1 / GROUP).contains(&g);
+                assert_eq!(
+                    dirty[g / 64] >> (g % 64) & 1 == 1,
+                    want,
+                    "group {g} of {b0}..={b1}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_boxes_directions_are_within_their_slack() {
+        let mut rng = crate::rng::Rng::new(9);
+        for _ in 0..20_000 {
+            let heading = rng.uniform_range(-PI, PI);
+            let fan = Fan::new(libm::cos(heading), libm::sin(heading), 4.7, 4.7 / 1079.0);
+            let (gx, gy) = (
+                rng.uniform_range(0.0, 2000.0),
+                rng.uniform_range(0.0, 2000.0),
+            );
+            let corner = |rng: &mut crate::rng::Rng| -> [f64; 4] {
+                let (x0, y0) = (rng.below(32) as f64 * 64.0, rng.below(32) as f64 * 64.0);
+                [x0, y0, x0 + 64.0, y0 + 64.0]
+            };
+            let (group, rect) = (corner(&mut rng), corner(&mut rng));
+            let exact = |[x0, y0, x1, y1]: [f64; 4]| -> [f64; 4] {
+                let (xs, ys) = ([x0, x1, x0, x1], [y0, y0, y1, y1]);
+                std::array::from_fn(|k| {
+                    let (vx, vy) = (xs[k] - gx, ys[k] - gy);
+                    libm::atan2(vy * fan.cos - vx * fan.sin, vx * fan.cos + vy * fan.sin)
+                })
+            };
+            let check = |avx: bool| {
+                let (ga, ra, slack) = if avx {
+                    box_angles::<true>(&fan, gx, gy, Some(group), rect)
+                } else {
+                    box_angles::<false>(&fan, gx, gy, Some(group), rect)
+                };
+                for (got, want) in [(ga, exact(group)), (ra, exact(rect))] {
+                    for k in 0..4 {
+                        let e = wrap_angle(got[k] - want[k]).abs();
+                        assert!(e < slack, "{e} over {slack} (avx {avx})");
+                    }
+                }
+            };
+            check(false);
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx") {
+                check(true);
+            }
+        }
     }
 }
