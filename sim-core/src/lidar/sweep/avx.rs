@@ -203,6 +203,27 @@ pub(super) unsafe fn max_of(start: f64, v: &[f64]) -> f64 {
         .fold(_mm_cvtsd_f64(h), |a, &b| max(a, b))
 }
 
+/// The largest of 16 values (none of them NaN) and 0: `super::max_of(0.0, v)` as a
+/// tree of four-lane maxima.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[target_feature(enable = "avx")]
+#[inline]
+pub(super) unsafe fn max16(v: &[f64; 16]) -> f64 {
+    let p = v.as_ptr();
+    // SAFETY: sixteen values.
+    let m = unsafe {
+        _mm256_max_pd(
+            _mm256_max_pd(_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4))),
+            _mm256_max_pd(_mm256_loadu_pd(p.add(8)), _mm256_loadu_pd(p.add(12))),
+        )
+    };
+    let h = _mm_max_pd(_mm256_castpd256_pd128(m), _mm256_extractf128_pd::<1>(m));
+    let h = _mm_max_sd(h, _mm_unpackhi_pd(h, h));
+    _mm_cvtsd_f64(_mm_max_sd(h, _mm_setzero_pd()))
+}
+
 /// `super::box_angles` with AVX: the directions relative to the heading of the corners
 /// of the boxes `a` and `b` (each `[x0, y0, x1, y1]`) as seen from (gx, gy), eight at once
 /// by [`angles_ps`] (so within [`ANGLE_SLACK`] + [`ANGLE_ERR_PS`]).

@@ -162,8 +162,9 @@ impl Sweep {
         for v in [&mut self.tmax, &mut self.limit] {
             v.resize(n, 0.0);
         }
-        // One lane more: the crossings of a short run take two lanes whatever its span.
-        let padded = n.next_multiple_of(LANES) + LANES;
+        // One lane more: the crossings of a short run take two lanes whatever its span;
+        // and whole groups (the padding's ranges stay 0, below every beam's).
+        let padded = (n.next_multiple_of(LANES) + LANES).next_multiple_of(GROUP);
         for v in [
             &mut self.dx,
             &mut self.dy,
@@ -232,8 +233,8 @@ impl Sweep {
     ) {
         let n = self.tmax.len();
         self.marched.clear();
-        for (g, m) in self.group_max.iter_mut().enumerate() {
-            *m = max_of::<AVX>(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
+        for g in 0..self.group_max.len() {
+            self.group_max[g] = self.group_best::<AVX>(g);
         }
         let supers = faces.blocks_x.div_ceil(SUPER) * faces.blocks_y.div_ceil(SUPER);
         if self.super_dead.len() < supers {
@@ -315,6 +316,21 @@ impl Sweep {
         }
     }
 
+    /// The largest current range of the beams of group `g` (a whole group: the padding
+    /// past the last beam holds zeros).
+    #[inline(always)]
+    fn group_best<const AVX: bool>(&self, g: usize) -> f64 {
+        let group: &[f64; GROUP] = self.best[g * GROUP..(g + 1) * GROUP]
+            .try_into()
+            .expect("whole groups");
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            // SAFETY: `AVX` is set only by callers that checked the CPU has AVX.
+            return unsafe { avx::max16(group) };
+        }
+        max_of::<false>(0.0, group)
+    }
+
     /// The largest current range of any beam.
     #[inline(always)]
     fn reach<const AVX: bool>(&self) -> f64 {
@@ -375,7 +391,6 @@ impl Sweep {
         if beyond(d2, far) {
             return;
         }
-        let n = self.tmax.len();
         if x1 > gx {
             self.cross::<true, AVX>(faces, faces.runs(bx, by, PLUS_X), gx, gy, fan, far);
         }
@@ -393,8 +408,7 @@ impl Sweep {
             while bits != 0 {
                 let g = 64 * w + bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                self.group_max[g] =
-                    max_of::<AVX>(0.0, &self.best[g * GROUP..((g + 1) * GROUP).min(n)]);
+                self.group_max[g] = self.group_best::<AVX>(g);
             }
         }
     }
