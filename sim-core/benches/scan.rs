@@ -23,6 +23,7 @@
 //! gather, a bit set of live packets, chunks of 384 rays (2-core AMD EPYC Zen 5 VM under
 //! load 2-4, old and new build alternated, medians of 6): scan 13.1 -> 11.2 us (83 -> 97 M
 //! rays/s); `--bench world` world_step/1car_scan 17.3 -> 14.4 us (medians of 5).
+//! `lidar_noise/add_noise` times the seeded noise of one scan (1080 Gaussian draws).
 
 use std::hint::black_box;
 
@@ -158,5 +159,23 @@ fn bench_scan(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_scan);
+/// The seeded noise of one scan (`Lidar::add_noise`: 1080 Gaussian draws added to the
+/// ranges), which every noisy step adds to its scan.
+fn bench_noise(c: &mut Criterion) {
+    let lidar = Lidar::new(LidarConfig::default());
+    let mut out = vec![5.0; lidar.num_beams()];
+    let mut rng = paddock_sim::rng::Rng::new(7);
+    let mut group = c.benchmark_group("lidar_noise");
+    group.throughput(Throughput::Elements(lidar.num_beams() as u64));
+    group.bench_function("add_noise", |b| {
+        b.iter(|| {
+            lidar.add_noise(black_box(&mut out), &mut rng);
+            // Back near 5 m, so the values stay in range over many iterations.
+            out.fill(5.0);
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_scan, bench_noise);
 criterion_main!(benches);

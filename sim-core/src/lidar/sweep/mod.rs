@@ -392,16 +392,20 @@ impl Sweep {
             return;
         }
         if x1 > gx {
-            self.cross::<true, AVX>(faces, faces.runs(bx, by, PLUS_X), gx, gy, fan, far);
+            let runs = ahead::<true>(faces, faces.runs(bx, by, PLUS_X), gx, far);
+            self.cross::<true, AVX>(faces, runs, gx, gy, fan, far);
         }
         if x0 < gx {
-            self.cross::<true, AVX>(faces, faces.runs(bx, by, MINUS_X), gx, gy, fan, far);
+            let runs = ahead::<false>(faces, faces.runs(bx, by, MINUS_X), gx, far);
+            self.cross::<true, AVX>(faces, runs, gx, gy, fan, far);
         }
         if y1 > gy {
-            self.cross::<false, AVX>(faces, faces.runs(bx, by, PLUS_Y), gy, gx, fan, far);
+            let runs = ahead::<true>(faces, faces.runs(bx, by, PLUS_Y), gy, far);
+            self.cross::<false, AVX>(faces, runs, gy, gx, fan, far);
         }
         if y0 < gy {
-            self.cross::<false, AVX>(faces, faces.runs(bx, by, MINUS_Y), gy, gx, fan, far);
+            let runs = ahead::<false>(faces, faces.runs(bx, by, MINUS_Y), gy, far);
+            self.cross::<false, AVX>(faces, runs, gy, gx, fan, far);
         }
         for w in 0..self.dirty.len() {
             let mut bits = std::mem::take(&mut self.dirty[w]);
@@ -572,6 +576,38 @@ impl Sweep {
             self.flagged |= run.cross(inv, along, best, flag, from, to);
         }
     }
+}
+
+/// Of the runs `runs` of one block side (sorted by line: see `WallFaces`), those that
+/// rays from the origin (at `g_line` across the lines) can meet from their free side
+/// (lines beyond the origin: above it for the `PLUS` sides, below for the others) no
+/// farther across than `far`, give or take a line (the crossings pass over the rest the
+/// same). A ray that crosses a run's line from its occupied side has passed through the
+/// run's occupied cells, so it met a face nearer before: the runs left out change no
+/// range. Found by counting lines below thresholds (loops the compiler vectorises; a
+/// binary search's branches cost more than it saved on maps with few runs per block).
+#[inline(always)]
+fn ahead<const PLUS: bool>(
+    faces: &WallFaces,
+    runs: std::ops::Range<usize>,
+    g_line: f64,
+    far: f64,
+) -> std::ops::Range<usize> {
+    let lines = &faces.line[runs.clone()];
+    let below = |t: f64| {
+        let t = t as f32;
+        lines.iter().filter(|&&l| l < t).count()
+    };
+    // Lines are whole numbers and the origin is off every line: a line is beyond it
+    // (above) exactly when it is at least floor(g_line) + 1.
+    let origin = libm::floor(g_line) + 1.0;
+    let reach = (far + EPS) * (1.0 + 2e-9);
+    let (first, last) = if PLUS {
+        (below(origin), below(libm::ceil(g_line + reach) + 2.0))
+    } else {
+        (below(libm::floor(g_line - reach) - 1.0), below(origin))
+    };
+    runs.start + first..runs.start + last.max(first)
 }
 
 /// The largest of `start` and `v` (none of them NaN), four lanes at a time: a fold one by
