@@ -953,4 +953,42 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn a_sides_runs_are_narrowed_to_those_ahead_and_within_reach() {
+        let mut rng = crate::rng::Rng::new(11);
+        for _ in 0..2000 {
+            let m = rng.below(40) as usize;
+            let mut lines: Vec<f32> = (0..m).map(|_| rng.below(200) as f32).collect();
+            lines.sort_by(f32::total_cmp);
+            let faces = WallFaces {
+                blocks_x: 1,
+                blocks_y: 1,
+                start: vec![0, m as u32, m as u32, m as u32, m as u32],
+                lo: vec![0.0; m + 3],
+                hi: vec![1.0; m + 3],
+                line: lines.iter().copied().chain([0.0; 3]).collect(),
+            };
+            let g = rng.below(200) as f64 + rng.uniform_range(1e-6, 1.0 - 1e-6);
+            let far = rng.uniform_range(0.0, 120.0);
+            for plus in [true, false] {
+                let got = if plus {
+                    ahead::<true>(&faces, 0..m, g, far)
+                } else {
+                    ahead::<false>(&faces, 0..m, g, far)
+                };
+                for (j, &l) in lines.iter().enumerate() {
+                    let across = f64::from(l) - g;
+                    let beyond = if plus { across > 0.0 } else { across < 0.0 };
+                    let near = across.abs() * (1.0 - 1e-9) - EPS <= far;
+                    if beyond && near {
+                        assert!(got.contains(&j), "run {j} on {l} from {g} within {far}");
+                    }
+                    if got.contains(&j) {
+                        assert!(beyond && across.abs() <= far + 3.0, "run {j} on {l}");
+                    }
+                }
+            }
+        }
+    }
 }
