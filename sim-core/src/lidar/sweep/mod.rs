@@ -594,6 +594,19 @@ fn ahead<const PLUS: bool>(
     far: f64,
 ) -> std::ops::Range<usize> {
     let lines = &faces.line[runs.clone()];
+    let (Some(&least), Some(&most)) = (lines.first(), lines.last()) else {
+        return runs;
+    };
+    // Most sides lie wholly beyond the origin and within reach: two comparisons.
+    let reach = (far + EPS) * (1.0 + 2e-9);
+    let whole = if PLUS {
+        f64::from(least) > g_line && f64::from(most) <= g_line + reach
+    } else {
+        f64::from(most) < g_line && f64::from(least) >= g_line - reach
+    };
+    if whole {
+        return runs;
+    }
     let below = |t: f64| {
         let t = t as f32;
         lines.iter().filter(|&&l| l < t).count()
@@ -601,7 +614,6 @@ fn ahead<const PLUS: bool>(
     // Lines are whole numbers and the origin is off every line: a line is beyond it
     // (above) exactly when it is at least floor(g_line) + 1.
     let origin = libm::floor(g_line) + 1.0;
-    let reach = (far + EPS) * (1.0 + 2e-9);
     let (first, last) = if PLUS {
         (below(origin), below(libm::ceil(g_line + reach) + 2.0))
     } else {
