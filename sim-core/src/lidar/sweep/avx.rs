@@ -194,13 +194,10 @@ pub(super) unsafe fn max_of(start: f64, v: &[f64]) -> f64 {
         // SAFETY: four values.
         a = _mm256_max_pd(a, unsafe { _mm256_loadu_pd(q.as_ptr()) });
     }
-    let m = _mm256_max_pd(a, b);
-    let h = _mm_max_pd(_mm256_castpd256_pd128(m), _mm256_extractf128_pd::<1>(m));
-    let h = _mm_max_sd(h, _mm_unpackhi_pd(h, h));
     let max = |a: f64, b: f64| if b > a { b } else { a };
     rest.remainder()
         .iter()
-        .fold(_mm_cvtsd_f64(h), |a, &b| max(a, b))
+        .fold(lanes_max(_mm256_max_pd(a, b)), |a, &b| max(a, b))
 }
 
 /// The largest of 16 values (none of them NaN) and 0: `super::max_of(0.0, v)` as a
@@ -219,9 +216,15 @@ pub(super) unsafe fn max16(v: &[f64; 16]) -> f64 {
             _mm256_max_pd(_mm256_loadu_pd(p.add(8)), _mm256_loadu_pd(p.add(12))),
         )
     };
+    lanes_max(_mm256_max_pd(m, _mm256_setzero_pd()))
+}
+
+/// The largest of the four lanes of `m` (none of them NaN).
+#[target_feature(enable = "avx")]
+#[inline]
+fn lanes_max(m: __m256d) -> f64 {
     let h = _mm_max_pd(_mm256_castpd256_pd128(m), _mm256_extractf128_pd::<1>(m));
-    let h = _mm_max_sd(h, _mm_unpackhi_pd(h, h));
-    _mm_cvtsd_f64(_mm_max_sd(h, _mm_setzero_pd()))
+    _mm_cvtsd_f64(_mm_max_sd(h, _mm_unpackhi_pd(h, h)))
 }
 
 /// `super::box_angles` with AVX: the directions relative to the heading of the corners
