@@ -59,6 +59,16 @@ fn xoshiro(s: &mut [u64; 4]) -> u64 {
     result
 }
 
+/// A ziggurat draw's layer (the low 8 bits) and its `u`, uniform in [-1, 1) from the top
+/// 53 bits.
+#[inline(always)]
+fn layer(bits: u64) -> (usize, f64) {
+    (
+        (bits & 0xff) as usize,
+        (bits >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0,
+    )
+}
+
 #[inline]
 fn splitmix64(state: &mut u64) -> u64 {
     *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -128,10 +138,7 @@ impl Rng {
     /// inlines into loops; the rest is out of line.
     #[inline(always)]
     fn normal_from(&mut self, z: &Ziggurat) -> f64 {
-        let bits = self.next_u64();
-        let i = (bits & 0xff) as usize;
-        // top 53 bits: u uniform in [-1, 1)
-        let u = (bits >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0;
+        let (i, u) = layer(self.next_u64());
         let x = u * z.x[i];
         if x.abs() < z.x[i + 1] {
             return x;
@@ -157,9 +164,7 @@ impl Rng {
             if z.f[i + 1] + (z.f[i] - z.f[i + 1]) * self.uniform() < libm::exp(-0.5 * x * x) {
                 return x;
             }
-            let bits = self.next_u64();
-            i = (bits & 0xff) as usize;
-            u = (bits >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0;
+            (i, u) = layer(self.next_u64());
             x = u * z.x[i];
             if x.abs() < z.x[i + 1] {
                 return x;
@@ -268,9 +273,7 @@ impl Rng {
             for _ in 0..=kept {
                 xoshiro(&mut s);
             }
-            let b = bits[kept];
-            let i = (b & 0xff) as usize;
-            let u = (b >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0;
+            let (i, u) = layer(bits[kept]);
             self.s = s;
             let x = self.normal_slow(z, i, u, u * z.x[i]);
             s = self.s;
