@@ -417,7 +417,17 @@ impl Lidar {
         };
         let mut sw = SCAN_SWEEP.take().unwrap_or_default();
         sw.resize(n);
-        self.box_limits(job, 0, &mut sw.limit);
+        // Every beam's limit is the range unless a box may be in the way of some.
+        if job
+            .boxes
+            .iter()
+            .all(|(_, beams)| beams.iter().all(|b| b.is_empty()))
+        {
+            sw.uniform = Some(job.max_range);
+        } else {
+            sw.uniform = None;
+            self.box_limits(job, 0, &mut sw.limit);
+        }
         sw.prepare(&self.beam_cos, &self.beam_sin, job.gc, job.gs, job.inv_res);
         sw.run::<AVX>(faces, job.gx, job.gy, job.res, &fan, out);
         if !sw.marched.is_empty() {
@@ -427,12 +437,13 @@ impl Lidar {
             for chunk in sw.marched.chunks(march::CHUNK) {
                 for (j, &i) in chunk.iter().enumerate() {
                     let i = i as usize;
-                    (batch.dx[j], batch.dy[j], batch.tmax[j]) = (sw.dx[i], sw.dy[i], sw.tmax[i]);
+                    (batch.dx[j], batch.dy[j], batch.tmax[j]) =
+                        (sw.dx[i], sw.dy[i], sw.limit_of(i) * job.inv_res);
                 }
                 batch.cast::<AVX>(map, job.gx, job.gy, chunk.len(), &mut cells);
                 for (j, &i) in chunk.iter().enumerate() {
                     let i = i as usize;
-                    out[i] = metres(cells[j], job.res, sw.limit[i]);
+                    out[i] = metres(cells[j], job.res, sw.limit_of(i));
                 }
             }
             SCAN_BATCH.set(Some(batch));

@@ -45,14 +45,12 @@ const ANGLE_SLACK: f64 = 1e-5;
 /// The sweep's per-beam arrays, kept per thread and reused.
 #[derive(Default)]
 pub(super) struct Sweep {
-    /// Unit direction in the grid frame and the range limit (cells) of each beam (see
-    /// [`Sweep::prepare`]).
+    /// Unit direction in the grid frame of each beam (see [`Sweep::prepare`]).
     pub dx: Vec<f64>,
     pub dy: Vec<f64>,
-    pub tmax: Vec<f64>,
     inv_dx: Vec<f64>,
     inv_dy: Vec<f64>,
-    /// The least crossing so far (starts beyond `tmax`).
+    /// The least crossing so far (starts beyond the beam's range limit in cells).
     best: Vec<f64>,
     /// Non-zero: a crossing near a run end; the march decides this beam. All zero between
     /// scans (a scan clears the few it set), so a scan sets it only where it flags.
@@ -71,8 +69,12 @@ pub(super) struct Sweep {
     /// This thread's scans so far, and `serial << 16 | ring` of the ring being swept.
     serial: u64,
     stamp: u64,
-    /// The range limit of each beam in metres (the caller's scratch).
+    /// The range limit of each beam in metres (the caller's scratch), read only when
+    /// `uniform` is `None`; else every beam's limit is `uniform`.
     pub limit: Vec<f64>,
+    pub uniform: Option<f64>,
+    /// Cells per metre of the scan being swept.
+    inv_res: f64,
     /// Per run of the block side being crossed: its first and last beam (portable code),
     /// and what the AVX crossings need of it.
     first: Vec<f64>,
@@ -151,17 +153,51 @@ pub(super) fn faces_for<'m>(
     if applies { map.wall_faces() } else { None }
 }
 
+/// The per-beam arrays [`Sweep::prepare`] fills.
+struct Beams<'a> {
+    beam_cos: &'a [f64],
+    beam_sin: &'a [f64],
+    dx: &'a mut [f64],
+    dy: &'a mut [f64],
+    inv_dx: &'a mut [f64],
+    inv_dy: &'a mut [f64],
+    best: &'a mut [f64],
+}
+
+impl Beams<'_> {
+    /// Fills the beams' directions, their inverses and the first `best` (`start(j)` for
+    /// beam j).
+    #[inline(always)]
+    fn prepare(self, gc: f64, gs: f64, start: impl Fn(usize) -> f64) {
+        let n = self.best.len();
+        let (beam_cos, beam_sin) = (&self.beam_cos[..n], &self.beam_sin[..n]);
+        let (dxs, dys) = (&mut self.dx[..n], &mut self.dy[..n]);
+        let (inv_dx, inv_dy) = (&mut self.inv_dx[..n], &mut self.inv_dy[..n]);
+        for j in 0..n {
+            let (bc, bs) = (beam_cos[j], beam_sin[j]);
+            // As the march prepares them: -0.0 would give an inverse of -infinity.
+            let dx = gc * bc - gs * bs;
+            let dy = gs * bc + gc * bs;
+            let dx = if dx == 0.0 { 0.0 } else { dx };
+            let dy = if dy == 0.0 { 0.0 } else { dy };
+            dxs[j] = dx;
+            dys[j] = dy;
+            inv_dx[j] = 1.0 / dx;
+            inv_dy[j] = 1.0 / dy;
+            self.best[j] = start(j);
+        }
+    }
+}
+
 impl Sweep {
     /// Sizes the arrays for `n` beams (contents unspecified until filled). The arrays the
     /// crossings read are padded to whole lanes of four with beams that meet nothing (an
     /// inverse of 0 gives t = 0, never a crossing).
     pub(super) fn resize(&mut self, n: usize) {
-        if self.tmax.len() == n {
+        if self.limit.len() == n {
             return;
         }
-        for v in [&mut self.tmax, &mut self.limit] {
-            v.resize(n, 0.0);
-        }
+        self.limit.resize(n, 0.0);
         // One lane more: the crossings of a short run take two lanes whatever its span;
         // and whole groups (the padding's ranges stay 0, below every beam's).
         let padded = (n.next_multiple_of(LANES) + LANES).next_multiple_of(GROUP);
@@ -183,8 +219,8 @@ impl Sweep {
     }
 
     /// The beams' directions in the grid frame (the beam's `cos` and `sin` relative to the
-    /// heading turned by the heading's `gc`, `gs`, as the march computes them) and their
-    /// limits in cells from `limit` (metres, filled by the caller) and `inv_res`.
+    /// heading turned by the heading's `gc`, `gs`, as the march computes them), and their
+    /// limits in cells from `uniform` or `limit` (metres, set by the caller) and `inv_res`.
     #[inline(always)]
     pub(super) fn prepare(
         &mut self,
@@ -194,31 +230,38 @@ impl Sweep {
         gs: f64,
         inv_res: f64,
     ) {
-        let n = self.tmax.len();
-        let (beam_cos, beam_sin, limit) = (&beam_cos[..n], &beam_sin[..n], &self.limit[..n]);
-        let (dxs, dys) = (&mut self.dx[..n], &mut self.dy[..n]);
-        let (inv_dx, inv_dy) = (&mut self.inv_dx[..n], &mut self.inv_dy[..n]);
-        let (tmax, best) = (&mut self.tmax[..n], &mut self.best[..n]);
-        for j in 0..n {
-            let (bc, bs) = (beam_cos[j], beam_sin[j]);
-            // As the march prepares them: -0.0 would give an inverse of -infinity.
-            let dx = gc * bc - gs * bs;
-            let dy = gs * bc + gc * bs;
-            let dx = if dx == 0.0 { 0.0 } else { dx };
-            let dy = if dy == 0.0 { 0.0 } else { dy };
-            dxs[j] = dx;
-            dys[j] = dy;
-            inv_dx[j] = 1.0 / dx;
-            inv_dy[j] = 1.0 / dy;
-            let t = limit[j] * inv_res;
-            tmax[j] = t;
-            // Any start beyond tmax will do (a crossing beyond it is no hit).
-            best[j] = t + 1.0;
+        let n = self.limit.len();
+        self.inv_res = inv_res;
+        let beams = Beams {
+            beam_cos: &beam_cos[..n],
+            beam_sin: &beam_sin[..n],
+            dx: &mut self.dx[..n],
+            dy: &mut self.dy[..n],
+            inv_dx: &mut self.inv_dx[..n],
+            inv_dy: &mut self.inv_dy[..n],
+            best: &mut self.best[..n],
+        };
+        // Any start beyond the limit will do (a crossing beyond it is no hit).
+        match self.uniform {
+            Some(limit) => {
+                let start = limit * inv_res + 1.0;
+                beams.prepare(gc, gs, |_| start);
+            }
+            None => {
+                let limit = &self.limit[..n];
+                beams.prepare(gc, gs, |j| limit[j] * inv_res + 1.0);
+            }
         }
     }
 
+    /// Beam `i`'s range limit in metres.
+    #[inline(always)]
+    pub(super) fn limit_of(&self, i: usize) -> f64 {
+        self.uniform.unwrap_or_else(|| self.limit[i])
+    }
+
     /// Sweeps `faces` (those of the map, see [`faces_for`]) from the grid point (gx, gy)
-    /// for the beams `dx`, `dy`, `tmax` (see [`Sweep::prepare`]; `fan` says where they
+    /// for the beams `dx`, `dy` and their limits (see [`Sweep::prepare`]; `fan` says where they
     /// point): `out[i]` is the range in metres (cells times `res`, capped at the beam's
     /// limit) for every beam not listed in `marched`: those the caller marches.
     #[inline(always)]
@@ -231,7 +274,7 @@ impl Sweep {
         fan: &Fan,
         out: &mut [f64],
     ) {
-        let n = self.tmax.len();
+        let n = self.limit.len();
         self.marched.clear();
         for g in 0..self.group_max.len() {
             self.group_max[g] = self.group_best::<AVX>(g);
@@ -244,17 +287,28 @@ impl Sweep {
         self.serial += 1;
         self.flagged = false;
         self.sweep::<AVX>(faces, gx, gy, fan);
-        let (best, tmax, limit) = (&self.best[..n], &self.tmax[..n], &self.limit[..n]);
-        for i in 0..n {
-            out[i] = metres(
-                if best[i] <= tmax[i] {
-                    best[i]
-                } else {
-                    f64::INFINITY
-                },
-                res,
-                limit[i],
-            );
+        let (best, inv_res) = (&self.best[..n], self.inv_res);
+        // A crossing beyond the limit (in cells) is no hit.
+        let range = |b: f64, limit: f64| {
+            let cells = if b <= limit * inv_res {
+                b
+            } else {
+                f64::INFINITY
+            };
+            metres(cells, res, limit)
+        };
+        match self.uniform {
+            Some(limit) => {
+                for i in 0..n {
+                    out[i] = range(best[i], limit);
+                }
+            }
+            None => {
+                let limit = &self.limit[..n];
+                for i in 0..n {
+                    out[i] = range(best[i], limit[i]);
+                }
+            }
         }
         if self.flagged {
             for (i, f) in self.flag[..n].iter_mut().enumerate() {
@@ -430,7 +484,7 @@ impl Sweep {
         ex: f64,
         ey: f64,
     ) -> f64 {
-        let n = self.tmax.len();
+        let n = self.limit.len();
         let ranges = if ex < 1.0 && ey < 1.0 {
             [0..n, 0..0]
         } else {
@@ -467,7 +521,7 @@ impl Sweep {
         if m == 0 {
             return;
         }
-        let n = self.tmax.len();
+        let n = self.limit.len();
         // The runs, and three more (padding or other runs) to read four at a time.
         let more = runs.start..runs.end + LANES - 1;
         let (line, los, his) = (
