@@ -438,7 +438,7 @@ impl Lidar {
                 for (j, &i) in chunk.iter().enumerate() {
                     let i = i as usize;
                     (batch.dx[j], batch.dy[j], batch.tmax[j]) =
-                        (sw.dx[i], sw.dy[i], sw.limit_of(i) * job.inv_res);
+                        (sw.dx[i], sw.dy[i], sw.limit_cells(i));
                 }
                 batch.cast::<AVX>(map, job.gx, job.gy, chunk.len(), &mut cells);
                 for (j, &i) in chunk.iter().enumerate() {

@@ -260,6 +260,12 @@ impl Sweep {
         self.uniform.unwrap_or_else(|| self.limit[i])
     }
 
+    /// Beam `i`'s range limit in cells, as the sweep compares crossings with it.
+    #[inline(always)]
+    pub(super) fn limit_cells(&self, i: usize) -> f64 {
+        self.limit_of(i) * self.inv_res
+    }
+
     /// Sweeps `faces` (those of the map, see [`faces_for`]) from the grid point (gx, gy)
     /// for the beams `dx`, `dy` and their limits (see [`Sweep::prepare`]; `fan` says where they
     /// point): `out[i]` is the range in metres (cells times `res`, capped at the beam's
