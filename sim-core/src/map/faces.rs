@@ -7,7 +7,9 @@
 //! rays going +x, with the occupied cell at X - 1 by rays going -x; horizontal faces
 //! likewise. Consecutive faces of one kind on one grid line make a run `[lo, hi]` along
 //! the line; runs are cut at block borders, so each run lies inside its block (the block
-//! of its occupied cells), and a block's runs are stored together per side.
+//! of its occupied cells), and a block's runs are stored together per side. The faces are
+//! kept apart by the free region they border ([`FaceSets`]): a scan from a free cell
+//! needs only its own region's.
 
 /// Cells per side of a block. 64 rather than 32: fewer blocks to walk and cull per scan
 /// for a few more runs to cross (measured on the sweep, docs/performance-scan.md).
@@ -20,7 +22,8 @@ pub(crate) const MINUS_X: usize = 1;
 pub(crate) const PLUS_Y: usize = 2;
 pub(crate) const MINUS_Y: usize = 3;
 
-/// The wall faces of a map in runs, by block and side (see the module doc).
+/// Wall faces in runs, by block and side (see the module doc): those of one free region
+/// of a map, or of several.
 #[derive(Debug)]
 pub(crate) struct WallFaces {
     /// Blocks per row and per column of the map.
@@ -37,27 +40,64 @@ pub(crate) struct WallFaces {
     pub hi: Vec<f32>,
 }
 
-impl WallFaces {
-    /// The faces of a `width x height` row-major occupancy grid; `None` when the grid's
+/// At most this many face sets per map: the regions with the most runs get one each, the
+/// rest share the last (a superset of each one's faces, which is just as exact).
+const MAX_SETS: usize = 16;
+
+/// The wall faces of a map split by the free region they border (see [`FaceSets::new`]).
+#[derive(Debug)]
+pub(crate) struct FaceSets {
+    width: usize,
+    /// Per map cell, row-major: the index in `sets` of the faces of its free region (0 on
+    /// occupied cells). One byte a cell; empty when there is one set.
+    set_of: Vec<u8>,
+    sets: Vec<WallFaces>,
+}
+
+impl FaceSets {
+    /// The faces of a `width x height` row-major occupancy grid, split by the free region
+    /// (free cells joined across sides and corners) each borders; `None` when the grid's
     /// coordinates do not fit f32 exactly or the run count u32 (maps far beyond any real
     /// track: the LIDAR then marches).
-    pub(crate) fn new(width: usize, height: usize, occupied: &[bool]) -> Option<WallFaces> {
+    ///
+    /// A ray from a free cell stays in that cell's region (it passes from cell to cell
+    /// across a side or a corner) until it enters an occupied cell, across a face of that
+    /// region; a face of any other region lies at least a cell away from the region's
+    /// cells, so a ray meets it, if at all, only after that first face. So the region's
+    /// faces decide every range from within it, and the others need not be crossed. On a
+    /// race track's map, whose walls are drawn as lines with free space on both sides, the
+    /// track's region borders half the faces: the outer walls' outer sides belong to the
+    /// region around the track, the inner walls' inner sides to the infield's.
+    pub(crate) fn new(width: usize, height: usize, occupied: &[bool]) -> Option<FaceSets> {
         const EXACT: usize = 1 << 24;
         if width >= EXACT || height >= EXACT {
             return None;
         }
         let occ = |c: usize, r: usize| occupied[r * width + c];
+        let regions = Regions::new(width, height, occupied);
         let (blocks_x, blocks_y) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
-        // (key, line, lo, hi), key = 4 * block + side.
-        let mut runs: Vec<(usize, u32, u32, u32)> = Vec::new();
+        // (key, line, lo, hi, region), key = 4 * block + side.
+        let mut runs: Vec<(usize, u32, u32, u32, usize)> = Vec::new();
         let key = |bx: usize, by: usize, side: usize| 4 * (by * blocks_x + bx) + side;
         // Vertical faces on the inner lines x = 1 .. width - 1 (the map's outer border
         // cannot be reached from inside it), runs along y; then horizontal faces on the
-        // lines y = 1 .. height - 1, runs along x.
+        // lines y = 1 .. height - 1, runs along x. A run's free cells are one region's
+        // (they are side by side).
         for_line_runs(width, height, occ, |x, occupied_after, r0, r1| {
             let side = if occupied_after { PLUS_X } else { MINUS_X };
-            let bx = if occupied_after { x } else { x - 1 } / BLOCK;
-            runs.push((key(bx, r0 / BLOCK, side), x as u32, r0 as u32, r1 as u32));
+            let (bx, free) = if occupied_after {
+                (x / BLOCK, x - 1)
+            } else {
+                ((x - 1) / BLOCK, x)
+            };
+            let region = regions.of(free, r0);
+            runs.push((
+                key(bx, r0 / BLOCK, side),
+                x as u32,
+                r0 as u32,
+                r1 as u32,
+                region,
+            ));
         });
         for_line_runs(
             height,
@@ -65,29 +105,212 @@ impl WallFaces {
             |y, c| occ(c, y),
             |y, occupied_after, c0, c1| {
                 let side = if occupied_after { PLUS_Y } else { MINUS_Y };
-                let by = if occupied_after { y } else { y - 1 } / BLOCK;
-                runs.push((key(c0 / BLOCK, by, side), y as u32, c0 as u32, c1 as u32));
+                let (by, free) = if occupied_after {
+                    (y / BLOCK, y - 1)
+                } else {
+                    ((y - 1) / BLOCK, y)
+                };
+                let region = regions.of(c0, free);
+                runs.push((
+                    key(c0 / BLOCK, by, side),
+                    y as u32,
+                    c0 as u32,
+                    c1 as u32,
+                    region,
+                ));
             },
         );
         if runs.len() >= u32::MAX as usize {
             return None;
         }
+        // The regions by their runs, most first (ties by region: the same order on every
+        // machine); each of the first MAX_SETS - 1 gets a set, the rest share one.
+        let mut count = vec![0usize; regions.count];
+        for r in &runs {
+            count[r.4] += 1;
+        }
+        let mut order: Vec<usize> = (0..regions.count).collect();
+        order.sort_by_key(|&g| (std::cmp::Reverse(count[g]), g));
+        let mut set_of_region = vec![0u8; regions.count];
+        for (rank, &g) in order.iter().enumerate() {
+            set_of_region[g] = rank.min(MAX_SETS - 1) as u8;
+        }
+        let sets_len = regions.count.clamp(1, MAX_SETS);
+        let sets = (0..sets_len)
+            .map(|s| {
+                let mine = runs
+                    .iter()
+                    .filter(|r| usize::from(set_of_region[r.4]) == s)
+                    .map(|&(k, l, a, b, _)| (k, l, a, b));
+                WallFaces::from_runs(blocks_x, blocks_y, mine)
+            })
+            .collect();
+        // With one set every cell's is the first: no grid.
+        let mut set_of = vec![0u8; if sets_len > 1 { width * height } else { 0 }];
+        for row in (0..height).take_while(|_| sets_len > 1) {
+            for span in regions.row_start[row]..regions.row_start[row + 1] {
+                let (a, b) = regions.spans[span];
+                let set = set_of_region[regions.root(span)];
+                set_of[row * width + a as usize..row * width + b as usize].fill(set);
+            }
+        }
+        Some(FaceSets {
+            width,
+            set_of,
+            sets,
+        })
+    }
+
+    /// The faces that decide every range from the free map cell (col, row): those of its
+    /// region (and, for a small region, of others too).
+    #[inline(always)]
+    pub(crate) fn at(&self, col: usize, row: usize) -> &WallFaces {
+        if self.set_of.is_empty() {
+            return &self.sets[0];
+        }
+        &self.sets[usize::from(self.set_of[row * self.width + col])]
+    }
+
+    /// The bytes these faces hold: the runs (12 bytes each, and three of padding per set),
+    /// each set's index of its blocks' runs, and the grid of each cell's set.
+    #[cfg(test)]
+    pub(crate) fn bytes(&self) -> usize {
+        let set = |f: &WallFaces| 4 * (f.start.len() + f.line.len() + f.lo.len() + f.hi.len());
+        self.set_of.len() + self.sets.iter().map(set).sum::<usize>()
+    }
+
+    /// Every set, for tests.
+    #[cfg(test)]
+    pub(crate) fn sets(&self) -> &[WallFaces] {
+        &self.sets
+    }
+}
+
+/// The free regions of an occupancy grid: its free cells joined across sides and corners,
+/// found by joining each row's spans of free cells with those of the row below that touch
+/// them (union-find over spans, a few per row, rather than a label per cell).
+struct Regions {
+    /// Per row, its spans `[a, b)` of free cells in `spans[row_start[row]..row_start[row +
+    /// 1]]`; per span its parent in the union-find, then (after [`Regions::new`]) the
+    /// region of a root span.
+    row_start: Vec<usize>,
+    spans: Vec<(u32, u32)>,
+    parent: Vec<usize>,
+    region: Vec<usize>,
+    count: usize,
+}
+
+impl Regions {
+    fn new(width: usize, height: usize, occupied: &[bool]) -> Regions {
+        let mut row_start = Vec::with_capacity(height + 1);
+        let mut spans = Vec::new();
+        for row in occupied.chunks_exact(width).take(height) {
+            row_start.push(spans.len());
+            let mut c = 0;
+            while c < width {
+                if row[c] {
+                    c += 1;
+                    continue;
+                }
+                let a = c;
+                while c < width && !row[c] {
+                    c += 1;
+                }
+                spans.push((a as u32, c as u32));
+            }
+        }
+        row_start.push(spans.len());
+        let mut regions = Regions {
+            row_start,
+            parent: (0..spans.len()).collect(),
+            spans,
+            region: Vec::new(),
+            count: 0,
+        };
+        for row in 1..height {
+            let (mut i, i_end) = (regions.row_start[row - 1], regions.row_start[row]);
+            let (mut j, j_end) = (i_end, regions.row_start[row + 1]);
+            while i < i_end && j < j_end {
+                let ((a0, b0), (a1, b1)) = (regions.spans[i], regions.spans[j]);
+                // Cells a0..b0 and a1..b1 of adjacent rows touch (across a side or a
+                // corner) when neither lies wholly more than one cell past the other.
+                if a0 <= b1 && a1 <= b0 {
+                    regions.join(i, j);
+                }
+                if b0 < b1 { i += 1 } else { j += 1 }
+            }
+        }
+        let mut region = vec![usize::MAX; regions.spans.len()];
+        let mut count = 0;
+        for s in 0..regions.spans.len() {
+            let root = regions.find(s);
+            if region[root] == usize::MAX {
+                region[root] = count;
+                count += 1;
+            }
+        }
+        regions.region = region;
+        regions.count = count;
+        regions
+    }
+
+    fn find(&mut self, mut s: usize) -> usize {
+        while self.parent[s] != s {
+            self.parent[s] = self.parent[self.parent[s]];
+            s = self.parent[s];
+        }
+        s
+    }
+
+    fn join(&mut self, a: usize, b: usize) {
+        let (a, b) = (self.find(a), self.find(b));
+        if a != b {
+            let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+            self.parent[hi] = lo;
+        }
+    }
+
+    /// The region of span `s` (every span's parent chain ends at its root after `new`,
+    /// whose region was numbered).
+    fn root(&self, mut s: usize) -> usize {
+        while self.parent[s] != s {
+            s = self.parent[s];
+        }
+        self.region[s]
+    }
+
+    /// The region of the free cell (col, row).
+    fn of(&self, col: usize, row: usize) -> usize {
+        let spans = &self.spans[self.row_start[row]..self.row_start[row + 1]];
+        // The first span ending past col holds it.
+        let k = spans.partition_point(|&(_, b)| (b as usize) <= col);
+        debug_assert!(k < spans.len() && spans[k].0 as usize <= col);
+        self.root(self.row_start[row] + k)
+    }
+}
+
+impl WallFaces {
+    /// The faces of the runs `(key, line, lo, hi)` (key = 4 * block + side), in their
+    /// order along each line, on a map of `blocks_x x blocks_y` blocks.
+    fn from_runs(
+        blocks_x: usize,
+        blocks_y: usize,
+        runs: impl Iterator<Item = (usize, u32, u32, u32)> + Clone,
+    ) -> WallFaces {
         // Counting sort by key (stable: runs keep their order along each line).
         let keys = 4 * blocks_x * blocks_y;
         let mut start = vec![0u32; keys + 1];
-        for &(k, ..) in &runs {
+        let mut len = 0;
+        for (k, ..) in runs.clone() {
             start[k + 1] += 1;
+            len += 1;
         }
         for k in 0..keys {
             start[k + 1] += start[k];
         }
         let mut next = start.clone();
-        let (mut line, mut lo, mut hi) = (
-            vec![0.0f32; runs.len()],
-            vec![0.0f32; runs.len()],
-            vec![0.0f32; runs.len()],
-        );
-        for &(k, l, a, b) in &runs {
+        let (mut line, mut lo, mut hi) = (vec![0.0f32; len], vec![0.0f32; len], vec![0.0f32; len]);
+        for (k, l, a, b) in runs {
             let i = next[k] as usize;
             next[k] += 1;
             line[i] = l as f32;
@@ -99,14 +322,14 @@ impl WallFaces {
         for v in [&mut line, &mut lo, &mut hi] {
             v.extend([0.0; 3]);
         }
-        Some(WallFaces {
+        WallFaces {
             blocks_x,
             blocks_y,
             start,
             line,
             lo,
             hi,
-        })
+        }
     }
 
     /// The runs of block (bx, by) facing `side`, as a range of run indices.
@@ -155,14 +378,35 @@ fn for_line_runs(
 
 #[cfg(test)]
 mod tests {
+    use std::collections::BTreeSet;
+
     use super::*;
+
+    /// (side, line, cell along) of every one-cell face of `f`.
+    fn unit_faces(f: &WallFaces) -> Vec<(usize, u32, u32)> {
+        let mut out = Vec::new();
+        for by in 0..f.blocks_y {
+            for bx in 0..f.blocks_x {
+                for side in [PLUS_X, MINUS_X, PLUS_Y, MINUS_Y] {
+                    for i in f.runs(bx, by, side) {
+                        for k in f.lo[i] as u32..f.hi[i] as u32 {
+                            out.push((side, f.line[i] as u32, k));
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
 
     #[test]
     fn faces_of_a_small_grid_are_found_with_their_sides_and_runs() {
-        // 3 x 3 with the centre occupied: four one-cell faces around it.
+        // 3 x 3 with the centre occupied: four one-cell faces around it, one region.
         let mut occ = vec![false; 9];
         occ[4] = true;
-        let f = WallFaces::new(3, 3, &occ).unwrap();
+        let sets = FaceSets::new(3, 3, &occ).unwrap();
+        assert_eq!(sets.sets().len(), 1);
+        let f = sets.at(0, 0);
         assert_eq!((f.blocks_x, f.blocks_y), (1, 1));
         let get = |side| {
             f.runs(0, 0, side)
@@ -178,28 +422,165 @@ mod tests {
     #[test]
     fn runs_merge_along_a_wall_and_are_cut_at_block_borders() {
         // A wall along column 5 of a grid 10 wide and two blocks and 6 cells high: one +x
-        // and one -x run per block row.
+        // run per block row for the region left of it, one -x run for the region right.
         let (w, h) = (10, 2 * BLOCK + 6);
         let occ: Vec<bool> = (0..w * h).map(|i| i % w == 5).collect();
-        let f = WallFaces::new(w, h, &occ).unwrap();
-        assert_eq!((f.blocks_x, f.blocks_y), (1, 3));
+        let sets = FaceSets::new(w, h, &occ).unwrap();
+        assert_eq!(sets.sets().len(), 2);
         let b = BLOCK as f32;
         for (by, (lo, hi)) in [(0.0, b), (b, 2.0 * b), (2.0 * b, h as f32)]
             .into_iter()
             .enumerate()
         {
-            for (side, line) in [(PLUS_X, 5.0), (MINUS_X, 6.0)] {
+            for (col, side, line) in [(0, PLUS_X, 5.0), (9, MINUS_X, 6.0)] {
+                let f = sets.at(col, by * BLOCK);
+                assert_eq!((f.blocks_x, f.blocks_y), (1, 3));
                 let r = f.runs(0, by, side);
                 assert_eq!(r.len(), 1, "block row {by} side {side}");
                 assert_eq!(
                     (f.line[r.start], f.lo[r.start], f.hi[r.start]),
                     (line, lo, hi)
                 );
+                let other = if side == PLUS_X { MINUS_X } else { PLUS_X };
+                assert!(f.runs(0, by, other).is_empty());
+                assert!(f.runs(0, by, PLUS_Y).is_empty() && f.runs(0, by, MINUS_Y).is_empty());
+                assert!(!f.block_empty(0, by));
             }
-            assert!(f.runs(0, by, PLUS_Y).is_empty() && f.runs(0, by, MINUS_Y).is_empty());
         }
-        assert!(!f.block_empty(0, 2));
-        let empty = WallFaces::new(4, 4, &[false; 16]).unwrap();
-        assert!(empty.block_empty(0, 0) && empty.line.len() == 3);
+        let empty = FaceSets::new(4, 4, &[false; 16]).unwrap();
+        assert!(empty.at(2, 2).block_empty(0, 0) && empty.at(2, 2).line.len() == 3);
+        let full = FaceSets::new(4, 4, &[true; 16]).unwrap();
+        assert_eq!(full.sets().len(), 1);
+        assert!(full.sets()[0].block_empty(0, 0));
+    }
+
+    #[test]
+    fn one_set_keeps_no_grid_and_the_memory_is_bounded() {
+        // A ring wall inside a 300 x 200 map: two regions, a grid of one byte a cell.
+        let (w, h) = (300, 200);
+        let ring = |c: usize, r: usize| {
+            let (x, y) = (c as f64 - 150.0, r as f64 - 100.0);
+            let d = (x * x / 4.0 + y * y).sqrt();
+            (60.0..63.0).contains(&d)
+        };
+        let occ: Vec<bool> = (0..w * h).map(|i| ring(i % w, i / w)).collect();
+        let sets = FaceSets::new(w, h, &occ).unwrap();
+        assert_eq!(sets.sets().len(), 2);
+        let runs: usize = sets.sets().iter().map(|f| f.line.len() - 3).sum();
+        let index = 4 * (4 * w.div_ceil(BLOCK) * h.div_ceil(BLOCK) + 1);
+        assert_eq!(sets.bytes(), w * h + 12 * (runs + 6) + 2 * index);
+        assert!(!std::ptr::eq(sets.at(150, 100), sets.at(0, 0)));
+        // The same wall cut in two arcs: one region, no grid.
+        let occ: Vec<bool> = (0..w * h)
+            .map(|i| ring(i % w, i / w) && !(140..160).contains(&(i % w)))
+            .collect();
+        let sets = FaceSets::new(w, h, &occ).unwrap();
+        assert_eq!(sets.sets().len(), 1);
+        assert!(std::ptr::eq(sets.at(150, 100), sets.at(0, 0)));
+        let runs = sets.sets()[0].line.len() - 3;
+        assert_eq!(sets.bytes(), 12 * (runs + 3) + index);
+    }
+
+    /// The free regions of a grid by a flood fill across sides and corners: per cell its
+    /// region (usize::MAX on occupied cells), and the number of regions.
+    fn flood(w: usize, h: usize, occ: &[bool]) -> (Vec<usize>, usize) {
+        let mut region = vec![usize::MAX; w * h];
+        let mut count = 0;
+        for start in 0..w * h {
+            if occ[start] || region[start] != usize::MAX {
+                continue;
+            }
+            region[start] = count;
+            let mut stack = vec![start];
+            while let Some(c) = stack.pop() {
+                let (x, y) = ((c % w) as isize, (c / w) as isize);
+                for (dx, dy) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))) {
+                    let (nx, ny) = (x + dx, y + dy);
+                    if nx < 0 || ny < 0 || nx >= w as isize || ny >= h as isize {
+                        continue;
+                    }
+                    let n = ny as usize * w + nx as usize;
+                    if !occ[n] && region[n] == usize::MAX {
+                        region[n] = count;
+                        stack.push(n);
+                    }
+                }
+            }
+            count += 1;
+        }
+        (region, count)
+    }
+
+    #[test]
+    fn each_free_cell_gets_every_face_of_its_region_and_each_face_is_kept_once() {
+        let mut rng = crate::rng::Rng::new(3);
+        for trial in 0..60 {
+            // Small grids with many regions (more than MAX_SETS: pockets share a set), and
+            // grids across several blocks with few.
+            let (w, h, density) = if trial % 3 == 0 {
+                (
+                    150 + rng.below(40) as usize,
+                    70 + rng.below(80) as usize,
+                    0.2,
+                )
+            } else {
+                (5 + rng.below(40) as usize, 5 + rng.below(40) as usize, 0.5)
+            };
+            let occ: Vec<bool> = (0..w * h)
+                .map(|_| rng.uniform_range(0.0, 1.0) < density)
+                .collect();
+            let (region, count) = flood(w, h, &occ);
+            // Every face by the region of its free cell.
+            let mut want: Vec<BTreeSet<(usize, u32, u32)>> = vec![BTreeSet::new(); count];
+            for r in 0..h {
+                for x in 1..w {
+                    let (a, b) = (occ[r * w + x - 1], occ[r * w + x]);
+                    if a != b {
+                        let (side, free) = if b { (PLUS_X, x - 1) } else { (MINUS_X, x) };
+                        want[region[r * w + free]].insert((side, x as u32, r as u32));
+                    }
+                }
+            }
+            for y in 1..h {
+                for c in 0..w {
+                    let (a, b) = (occ[(y - 1) * w + c], occ[y * w + c]);
+                    if a != b {
+                        let (side, free) = if b { (PLUS_Y, y - 1) } else { (MINUS_Y, y) };
+                        want[region[free * w + c]].insert((side, y as u32, c as u32));
+                    }
+                }
+            }
+            let sets = FaceSets::new(w, h, &occ).unwrap();
+            assert_eq!(sets.sets().len(), count.clamp(1, MAX_SETS), "trial {trial}");
+            let got: Vec<BTreeSet<_>> = sets
+                .sets()
+                .iter()
+                .map(|f| unit_faces(f).into_iter().collect())
+                .collect();
+            // Each face in exactly one set.
+            let total: usize = got.iter().map(BTreeSet::len).sum();
+            let all: BTreeSet<_> = want.iter().flatten().copied().collect();
+            assert_eq!(total, all.len(), "trial {trial}");
+            assert_eq!(got.iter().flatten().copied().collect::<BTreeSet<_>>(), all);
+            let mut checked = BTreeSet::new();
+            for (cell, &g) in region.iter().enumerate() {
+                if g == usize::MAX {
+                    continue;
+                }
+                let set = sets.at(cell % w, cell / w);
+                let k = sets
+                    .sets()
+                    .iter()
+                    .position(|s| std::ptr::eq(s, set))
+                    .unwrap();
+                if !checked.insert((g, k)) {
+                    continue;
+                }
+                assert!(got[k].is_superset(&want[g]), "trial {trial} cell {cell}");
+                if count <= MAX_SETS {
+                    assert_eq!(got[k], want[g], "trial {trial} cell {cell}");
+                }
+            }
+        }
     }
 }

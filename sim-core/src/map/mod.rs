@@ -60,8 +60,8 @@ pub struct Map {
     content_hash: OnceLock<u64>,
     distance_field: OnceLock<Vec<f64>>,
     /// The wall faces for the LIDAR's angular sweep, built on first use (`None`: the map
-    /// is too large for them, see [`faces::WallFaces::new`]).
-    wall_faces: OnceLock<Option<faces::WallFaces>>,
+    /// is too large for them, see [`faces::FaceSets::new`]).
+    wall_faces: OnceLock<Option<faces::FaceSets>>,
 }
 
 impl Map {
@@ -257,12 +257,17 @@ impl Map {
         &self.quadrants
     }
 
-    /// The wall faces in runs by block and side (built on first use; `None` for maps too
-    /// large for them); for the LIDAR.
-    pub(crate) fn wall_faces(&self) -> Option<&faces::WallFaces> {
-        self.wall_faces
-            .get_or_init(|| faces::WallFaces::new(self.width, self.height, &self.occupied))
-            .as_ref()
+    /// The wall faces in runs by block and side, by the free region they border (built on
+    /// first use; `None` for maps too large for them); for the LIDAR.
+    #[inline]
+    pub(crate) fn wall_faces(&self) -> Option<&faces::FaceSets> {
+        // Built out of line: once per map, and kept out of the scan's code.
+        #[cold]
+        #[inline(never)]
+        fn build(map: &Map) -> Option<faces::FaceSets> {
+            faces::FaceSets::new(map.width, map.height, &map.occupied)
+        }
+        self.wall_faces.get_or_init(|| build(self)).as_ref()
     }
 
     /// The Chebyshev clearance of map cell (c, r): the minimum of its four quadrant

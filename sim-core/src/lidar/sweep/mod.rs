@@ -3,7 +3,8 @@
 //!
 //! Instead of following each ray cell by cell, the sweep takes the map's wall faces
 //! ([`WallFaces`]: straight runs of cell sides between a free and an occupied cell, by
-//! 64 x 64-cell block and by the side they face) block by block, nearest blocks first,
+//! 64 x 64-cell block and by the side they face; only those of the origin's free region,
+//! see `FaceSets`: on a race track's map half of them) block by block, nearest blocks first,
 //! and crosses each run with the beams that can see its block: a beam going +x meets a
 //! run on the line x = X at `t = (X - gx) / dx` (the march's own expression, so the same
 //! bits) if `gy + t dy` lies on the run. A beam's range is the least such t. Blocks wholly
@@ -122,9 +123,10 @@ impl Fan {
     }
 }
 
-/// The map's wall faces if the sweep applies to a scan of `n` beams of `fan` from the
-/// grid point (gx, gy) with range limits up to `tmax` cells; `None` when the caller must
-/// march every beam (see the module doc).
+/// The wall faces of the origin's free region if the sweep applies to a scan of `n` beams
+/// of `fan` from the grid point (gx, gy) with range limits up to `tmax` cells; `None` when
+/// the caller must march every beam (see the module doc). Out of line: once per scan.
+#[inline(never)]
 pub(super) fn faces_for<'m>(
     map: &'m Map,
     gx: f64,
@@ -150,7 +152,12 @@ pub(super) fn faces_for<'m>(
         && !near_line(gy)
         && !map.cell_occupied(gx as i64, gy as i64)
         && tmax.is_finite();
-    if applies { map.wall_faces() } else { None }
+    if !applies {
+        return None;
+    }
+    // The faces of the origin's free region decide every range (see `FaceSets::new`).
+    map.wall_faces()
+        .map(|sets| sets.at(gx as usize, gy as usize))
 }
 
 /// The per-beam arrays [`Sweep::prepare`] fills.
