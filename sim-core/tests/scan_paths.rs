@@ -339,3 +339,41 @@ fn worlds_step_to_the_same_bits_by_march_and_by_sweep() {
         }
     }
 }
+
+#[test]
+fn a_map_beyond_the_bound_on_wall_faces_is_marched_to_the_same_bits() {
+    // A checkerboard 2048 cells across around a free room: far more wall-face runs than
+    // the sweep keeps faces for, so every scan is marched, on every path alike.
+    let side = 2048;
+    let room = |c: usize, r: usize| (924..1124).contains(&c) && (924..1124).contains(&r);
+    let occupied = (0..side * side)
+        .map(|i| {
+            let (c, r) = (i % side, i / side);
+            !room(c, r) && (c + r) % 2 == 1
+        })
+        .collect();
+    let map = Map::from_grid(
+        "board",
+        side,
+        side,
+        0.05,
+        Pose::new(0.0, 0.0, 0.0),
+        occupied,
+    )
+    .expect("a valid grid");
+    let lidars = every_path(LidarConfig::default());
+    let (marched, swept) = paddock_sim::lidar::thread_scans_by_algorithm();
+    let mut rng = Rng::new(9);
+    for _ in 0..20 {
+        let pose = Pose::new(
+            rng.uniform_range(47.0, 55.0),
+            rng.uniform_range(47.0, 55.0),
+            rng.uniform_range(-3.2, 3.2),
+        );
+        assert_paths_agree("board", &lidars, &map, pose, &[]);
+    }
+    let (marched_after, swept_after) = paddock_sim::lidar::thread_scans_by_algorithm();
+    assert_eq!(swept_after, swept, "no scan is swept");
+    // (the default's timing trials count twice)
+    assert!(marched_after - marched >= 20 * lidars.len() as u64);
+}

@@ -40,6 +40,12 @@ pub(crate) struct WallFaces {
     pub hi: Vec<f32>,
 }
 
+/// At most this many runs per map (the real tracks of `shared/maps` have 20-41 thousand):
+/// a map with more, such as a noise or checkerboard image at the size cap, is marched
+/// (the same ranges) rather than let it hold gigabytes while its faces are built (about
+/// 40 bytes a run then, 12 kept).
+const MAX_RUNS: usize = 2 << 20;
+
 /// At most this many face sets per map: the regions with the most runs get one each, the
 /// rest share the last (a superset of each one's faces, which is just as exact).
 const MAX_SETS: usize = 16;
@@ -57,8 +63,8 @@ pub(crate) struct FaceSets {
 impl FaceSets {
     /// The faces of a `width x height` row-major occupancy grid, split by the free region
     /// (free cells joined across sides and corners) each borders; `None` when the grid's
-    /// coordinates do not fit f32 exactly or the run count u32 (maps far beyond any real
-    /// track: the LIDAR then marches).
+    /// coordinates do not fit f32 exactly or it has more than [`MAX_RUNS`] runs (maps far
+    /// beyond any real track: the LIDAR then marches).
     ///
     /// A ray from a free cell stays in that cell's region (it passes from cell to cell
     /// across a side or a corner) until it enters an occupied cell, across a face of that
@@ -74,6 +80,14 @@ impl FaceSets {
             return None;
         }
         let occ = |c: usize, r: usize| occupied[r * width + c];
+        // Counted first, so that nothing is held for a map beyond the bound; the spans of
+        // free cells are at most one per run and row.
+        let mut total = 0;
+        for_line_runs(width, height, occ, |_, _, _, _| total += 1);
+        for_line_runs(height, width, |y, c| occ(c, y), |_, _, _, _| total += 1);
+        if total > MAX_RUNS {
+            return None;
+        }
         let regions = Regions::new(width, height, occupied);
         let (blocks_x, blocks_y) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
         // (key, line, lo, hi, region), key = 4 * block + side.
@@ -120,9 +134,6 @@ impl FaceSets {
                 ));
             },
         );
-        if runs.len() >= u32::MAX as usize {
-            return None;
-        }
         // The regions by their runs, most first (ties by region: the same order on every
         // machine); each of the first MAX_SETS - 1 gets a set, the rest share one.
         let mut count = vec![0usize; regions.count];
@@ -146,12 +157,15 @@ impl FaceSets {
             })
             .collect();
         // With one set every cell's is the first: no grid.
-        let mut set_of = vec![0u8; if sets_len > 1 { width * height } else { 0 }];
-        for row in (0..height).take_while(|_| sets_len > 1) {
-            for span in regions.row_start[row]..regions.row_start[row + 1] {
-                let (a, b) = regions.spans[span];
-                let set = set_of_region[regions.root(span)];
-                set_of[row * width + a as usize..row * width + b as usize].fill(set);
+        let mut set_of = Vec::new();
+        if sets_len > 1 {
+            set_of.resize(width * height, 0u8);
+            for row in 0..height {
+                for span in regions.row_start[row]..regions.row_start[row + 1] {
+                    let (a, b) = regions.spans[span];
+                    let set = set_of_region[regions.root(span)];
+                    set_of[row * width + a as usize..row * width + b as usize].fill(set);
+                }
             }
         }
         Some(FaceSets {
@@ -447,6 +461,18 @@ mod tests {
                 assert!(!f.block_empty(0, by));
             }
         }
+        // A checkerboard 2048 cells across: every face a run of its own, more than the
+        // bound, so no faces (the LIDAR marches), and at the bound still built.
+        let side = 2048;
+        let board: Vec<bool> = (0..side * side)
+            .map(|i| (i % side + i / side) % 2 == 1)
+            .collect();
+        assert!(FaceSets::new(side, side, &board).is_none());
+        let rows = MAX_RUNS / (2 * side - 1);
+        let board: Vec<bool> = (0..side * rows)
+            .map(|i| (i % side + i / side) % 2 == 1)
+            .collect();
+        assert!(FaceSets::new(side, rows, &board).is_some());
         let empty = FaceSets::new(4, 4, &[false; 16]).unwrap();
         assert!(empty.at(2, 2).block_empty(0, 0) && empty.at(2, 2).line.len() == 3);
         let full = FaceSets::new(4, 4, &[true; 16]).unwrap();
