@@ -92,47 +92,41 @@ impl FaceSets {
         let (blocks_x, blocks_y) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
         // (key, line, lo, hi, region), key = 4 * block + side.
         let mut runs: Vec<(usize, u32, u32, u32, usize)> = Vec::new();
-        let key = |bx: usize, by: usize, side: usize| 4 * (by * blocks_x + bx) + side;
+        // A run on line `line` (x = line if `vertical`, else y = line) along `k0..k1`,
+        // whose occupied cells lie after the line if `occupied_after`: its side, its
+        // block (that of its occupied cells) and its free cells' region.
+        let mut add = |vertical: bool, line: usize, occupied_after: bool, k0: usize, k1: usize| {
+            let (plus, minus) = if vertical {
+                (PLUS_X, MINUS_X)
+            } else {
+                (PLUS_Y, MINUS_Y)
+            };
+            let (side, occupied, free) = if occupied_after {
+                (plus, line, line - 1)
+            } else {
+                (minus, line - 1, line)
+            };
+            let (bx, by, col, row) = if vertical {
+                (occupied / BLOCK, k0 / BLOCK, free, k0)
+            } else {
+                (k0 / BLOCK, occupied / BLOCK, k0, free)
+            };
+            let key = 4 * (by * blocks_x + bx) + side;
+            let region = regions.of(col, row);
+            runs.push((key, line as u32, k0 as u32, k1 as u32, region));
+        };
         // Vertical faces on the inner lines x = 1 .. width - 1 (the map's outer border
         // cannot be reached from inside it), runs along y; then horizontal faces on the
         // lines y = 1 .. height - 1, runs along x. A run's free cells are one region's
         // (they are side by side).
-        for_line_runs(width, height, occ, |x, occupied_after, r0, r1| {
-            let side = if occupied_after { PLUS_X } else { MINUS_X };
-            let (bx, free) = if occupied_after {
-                (x / BLOCK, x - 1)
-            } else {
-                ((x - 1) / BLOCK, x)
-            };
-            let region = regions.of(free, r0);
-            runs.push((
-                key(bx, r0 / BLOCK, side),
-                x as u32,
-                r0 as u32,
-                r1 as u32,
-                region,
-            ));
+        for_line_runs(width, height, occ, |x, after, r0, r1| {
+            add(true, x, after, r0, r1)
         });
         for_line_runs(
             height,
             width,
             |y, c| occ(c, y),
-            |y, occupied_after, c0, c1| {
-                let side = if occupied_after { PLUS_Y } else { MINUS_Y };
-                let (by, free) = if occupied_after {
-                    (y / BLOCK, y - 1)
-                } else {
-                    ((y - 1) / BLOCK, y)
-                };
-                let region = regions.of(c0, free);
-                runs.push((
-                    key(c0 / BLOCK, by, side),
-                    y as u32,
-                    c0 as u32,
-                    c1 as u32,
-                    region,
-                ));
-            },
+            |y, after, c0, c1| add(false, y, after, c0, c1),
         );
         // The regions by their runs, most first (ties by region: the same order on every
         // machine); each of the first MAX_SETS - 1 gets a set, the rest share one.
@@ -163,7 +157,7 @@ impl FaceSets {
             for row in 0..height {
                 for span in regions.row_start[row]..regions.row_start[row + 1] {
                     let (a, b) = regions.spans[span];
-                    let set = set_of_region[regions.root(span)];
+                    let set = set_of_region[regions.region[span]];
                     set_of[row * width + a as usize..row * width + b as usize].fill(set);
                 }
             }
@@ -205,11 +199,9 @@ impl FaceSets {
 /// them (union-find over spans, a few per row, rather than a label per cell).
 struct Regions {
     /// Per row, its spans `[a, b)` of free cells in `spans[row_start[row]..row_start[row +
-    /// 1]]`; per span its parent in the union-find, then (after [`Regions::new`]) the
-    /// region of a root span.
+    /// 1]]`, and per span its region (`0..count`).
     row_start: Vec<usize>,
     spans: Vec<(u32, u32)>,
-    parent: Vec<usize>,
     region: Vec<usize>,
     count: usize,
 }
@@ -234,63 +226,47 @@ impl Regions {
             }
         }
         row_start.push(spans.len());
-        let mut regions = Regions {
-            row_start,
-            parent: (0..spans.len()).collect(),
-            spans,
-            region: Vec::new(),
-            count: 0,
+        // Union-find over the spans (path halving; the lower index becomes the root).
+        let mut parent: Vec<usize> = (0..spans.len()).collect();
+        let find = |parent: &mut [usize], mut s: usize| {
+            while parent[s] != s {
+                parent[s] = parent[parent[s]];
+                s = parent[s];
+            }
+            s
         };
         for row in 1..height {
-            let (mut i, i_end) = (regions.row_start[row - 1], regions.row_start[row]);
-            let (mut j, j_end) = (i_end, regions.row_start[row + 1]);
+            let (mut i, i_end) = (row_start[row - 1], row_start[row]);
+            let (mut j, j_end) = (i_end, row_start[row + 1]);
             while i < i_end && j < j_end {
-                let ((a0, b0), (a1, b1)) = (regions.spans[i], regions.spans[j]);
+                let ((a0, b0), (a1, b1)) = (spans[i], spans[j]);
                 // Cells a0..b0 and a1..b1 of adjacent rows touch (across a side or a
                 // corner) when neither lies wholly more than one cell past the other.
                 if a0 <= b1 && a1 <= b0 {
-                    regions.join(i, j);
+                    let (ri, rj) = (find(&mut parent, i), find(&mut parent, j));
+                    parent[ri.max(rj)] = ri.min(rj);
                 }
                 if b0 < b1 { i += 1 } else { j += 1 }
             }
         }
-        let mut region = vec![usize::MAX; regions.spans.len()];
+        // Regions numbered in the order of their first span.
+        let mut number = vec![usize::MAX; spans.len()];
+        let mut region = Vec::with_capacity(spans.len());
         let mut count = 0;
-        for s in 0..regions.spans.len() {
-            let root = regions.find(s);
-            if region[root] == usize::MAX {
-                region[root] = count;
+        for s in 0..spans.len() {
+            let root = find(&mut parent, s);
+            if number[root] == usize::MAX {
+                number[root] = count;
                 count += 1;
             }
+            region.push(number[root]);
         }
-        regions.region = region;
-        regions.count = count;
-        regions
-    }
-
-    fn find(&mut self, mut s: usize) -> usize {
-        while self.parent[s] != s {
-            self.parent[s] = self.parent[self.parent[s]];
-            s = self.parent[s];
+        Regions {
+            row_start,
+            spans,
+            region,
+            count,
         }
-        s
-    }
-
-    fn join(&mut self, a: usize, b: usize) {
-        let (a, b) = (self.find(a), self.find(b));
-        if a != b {
-            let (lo, hi) = if a < b { (a, b) } else { (b, a) };
-            self.parent[hi] = lo;
-        }
-    }
-
-    /// The region of span `s` (every span's parent chain ends at its root after `new`,
-    /// whose region was numbered).
-    fn root(&self, mut s: usize) -> usize {
-        while self.parent[s] != s {
-            s = self.parent[s];
-        }
-        self.region[s]
     }
 
     /// The region of the free cell (col, row).
@@ -299,7 +275,7 @@ impl Regions {
         // The first span ending past col holds it.
         let k = spans.partition_point(|&(_, b)| (b as usize) <= col);
         debug_assert!(k < spans.len() && spans[k].0 as usize <= col);
-        self.root(self.row_start[row] + k)
+        self.region[self.row_start[row] + k]
     }
 }
 
