@@ -1,7 +1,8 @@
 """Builds the `paddock` wheel: client-py's Python package plus the `paddock` binary, as
 Rust command-line tools on PyPI ship (maturin's `bindings = "bin"` layout): the binary is
 the wheel's script, so pip installs it into the environment's `bin/`, where the client's
-`endpoint=None` finds it.
+`endpoint=None` finds it; and with `--embed` the `paddock_embed` library in the package's
+`_native/` folder, where `endpoint=paddock.IN_PROCESS` finds it.
 
 The wheel is tagged `py3-none-<platform>`: any Python 3, no Python ABI, this machine's
 platform (`linux_x86_64`). The binary links the C and C++ runtimes (glibc, libstdc++)
@@ -60,7 +61,7 @@ def platform_tag() -> str:
     return sysconfig.get_platform().replace("-", "_").replace(".", "_")
 
 
-def build(binary: Path, out: Path) -> Path:
+def build(binary: Path, out: Path, embed: Path | None = None) -> Path:
     project = tomllib.loads((CLIENT / "pyproject.toml").read_text())["project"]
     name, version = project["name"], project["version"]
     tag = f"py3-none-{platform_tag()}"
@@ -70,6 +71,9 @@ def build(binary: Path, out: Path) -> Path:
         if f.is_file() and "__pycache__" not in f.parts and f.suffix in (".py", ".pyi", ".typed"):
             entries.append((f.relative_to(CLIENT).as_posix(), f.read_bytes(), 0o644))
     entries.append((f"{name}-{version}.data/scripts/paddock", binary.read_bytes(), 0o755))
+    if embed is not None:
+        # the in-process simulator (paddock.inprocess), loaded with ctypes: no Python ABI
+        entries.append((f"paddock/_native/{embed.name}", embed.read_bytes(), 0o755))
     entries.append((f"{dist_info}/METADATA", metadata(project).encode(), 0o644))
     wheel = f"Wheel-Version: 1.0\nGenerator: paddock build_wheel.py\nRoot-Is-Purelib: false\nTag: {tag}\n"
     entries.append((f"{dist_info}/WHEEL", wheel.encode(), 0o644))
@@ -95,11 +99,15 @@ def build(binary: Path, out: Path) -> Path:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--binary", type=Path, required=True, help="the paddock binary to ship")
+    ap.add_argument("--embed", type=Path, default=None,
+                    help="the paddock_embed library to ship (libpaddock_embed.so)")
     ap.add_argument("--out", type=Path, default=ROOT / "dist", help="output folder")
     args = ap.parse_args()
     if not (args.binary.is_file() and os.access(args.binary, os.X_OK)):
         raise SystemExit(f"--binary {args.binary}: not an executable file")
-    print(build(args.binary, args.out))
+    if args.embed is not None and not args.embed.is_file():
+        raise SystemExit(f"--embed {args.embed}: not a file")
+    print(build(args.binary, args.out, args.embed))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@
 #
 # PADDOCK_VENV overrides the venv (default ~/.cache/paddock/venv); CARGO_TARGET_DIR is
 # honoured (default: scripts/setup.sh's per-checkout directory); PADDOCK_BIN skips the
-# cargo build and uses that binary.
+# cargo build and uses that binary (and the in-process simulator's library beside it, or
+# PADDOCK_EMBED_LIB).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PADDOCK_BIN:-}" ]; then
@@ -39,7 +40,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
 fi
 
 if [ -z "${PADDOCK_BIN:-}" ]; then
-    cargo build --release --locked -q -p paddock
+    cargo build --release --locked -q -p paddock -p paddock-embed
     PADDOCK_BIN="$(cd "$CARGO_TARGET_DIR/release" && pwd)/paddock"
 fi
 export PADDOCK_BIN

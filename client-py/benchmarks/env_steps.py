@@ -5,6 +5,7 @@ The f1tenth_gym reference steps about 3,300 steps/s for one car in-process on th
 machine (its scan is the cost); the goal for the 64-env vector env is 20x that.
 
     python benchmarks/env_steps.py [--endpoint tcp://HOST:PORT] [--seconds 5] [--map M]
+    python benchmarks/env_steps.py --endpoint in-process    # the simulator in this process
 
 With a local server (no --endpoint) it also reports the CPU time that this process and
 each thread of the server spent (Linux): env-steps per CPU-second is the figure of
@@ -70,7 +71,9 @@ def measure(env, n: int, seconds: float, server_pid: int | None = None) -> tuple
     split = {"client": client1 - client0}
     split.update({k: v - server0.get(k, 0.0) for k, v in server1.items()})
     cpu = sum(split.values())
-    per_cpu = steps * n / cpu if server_pid is not None and cpu > 0 else 0.0
+    # in-process, everything runs in this process: its CPU time is the whole cost
+    whole = server_pid is not None or env.unwrapped.session.conn.endpoint == paddock.IN_PROCESS
+    per_cpu = steps * n / cpu if whole and cpu > 0 else 0.0
     ms = {k: round(1e3 * v / steps, 4) for k, v in split.items() if v > 0}
     return steps * n / wall, per_cpu, ms
 
@@ -117,7 +120,7 @@ def main(argv: list[str] | None = None) -> dict:
     print("|---:|---:|---:|")
     print(f"| 1 | {one:,.0f} | {one / REFERENCE_STEPS_PER_S:.2f}x |")
     print(f"| {args.envs} | {many:,.0f} | {many / REFERENCE_STEPS_PER_S:.2f}x |")
-    if pid is not None:
+    if pid is not None or endpoint == paddock.IN_PROCESS:
         print(f"per CPU-second of client and server: 1 env {one_cpu:,.0f}, "
               f"{args.envs} envs {many_cpu:,.0f} env-steps")
         print(f"CPU ms per {args.envs}-env step: " +

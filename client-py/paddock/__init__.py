@@ -2,7 +2,8 @@
 simulation runs on a Paddock broker's workers (ZeroMQ + protobuf).
 
 - ``gymnasium.make("paddock/F110-v0", endpoint="tcp://HOST:PORT", map="lakeside")``
-  (``endpoint=None`` starts a local ``paddock serve``)
+  (``endpoint=None`` starts a local ``paddock serve``; ``endpoint=paddock.IN_PROCESS``
+  runs the simulator inside this process, see :mod:`paddock.inprocess`)
 - ``gymnasium.make_vec("paddock/F110-v0", num_envs=64, ...)`` or :func:`make_vec`
 - ``Client(endpoint).rollouts(driver, params, seeds)``, ``submit_tune``, ``jobs``
 - vehicle physics: ``params={...}`` (f1tenth_gym's keys) and ``vehicle="vehicle.yaml"``
@@ -20,6 +21,7 @@ import gymnasium as _gym
 from . import errors
 from .client import Client, Job, JobInfo, RolloutResults, driver_defaults, drivers
 from .env import EnvSession, F110Env, F110VectorEnv, make_vec
+from .inprocess import IN_PROCESS
 from .server import LocalServer
 
 ENV_ID = "paddock/F110-v0"
@@ -28,6 +30,6 @@ if ENV_ID not in _gym.registry:
     _gym.register(id=ENV_ID, entry_point="paddock.env:F110Env",
                   vector_entry_point="paddock.env:F110VectorEnv")
 
-__all__ = ["Client", "EnvSession", "F110Env", "F110VectorEnv", "Job", "JobInfo", "LocalServer",
+__all__ = ["Client", "EnvSession", "F110Env", "F110VectorEnv", "IN_PROCESS", "Job", "JobInfo", "LocalServer",
            "RolloutResults", "driver_defaults", "drivers", "errors", "make_vec", "ENV_ID"]
 __version__ = "0.1.0"

@@ -22,6 +22,10 @@ wrapper (e.g. ``gymnasium.wrappers.TransformReward``) using ``info["progress"]``
 The cars' physics: ``params={"mu": 0.8, "m": 3.9, ...}`` with f1tenth_gym's keys (merged
 over its defaults) and/or ``vehicle="vehicle.yaml"`` (the file ``paddock sysid`` writes,
 fitted effects included); see :mod:`paddock.vehicle`. They apply to every car.
+
+``endpoint=paddock.IN_PROCESS`` hosts the same sessions inside the learner's process
+(:mod:`paddock.inprocess`): the same checks and observations, bit for bit, without the
+broker hop and sockets.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from . import errors, wire
 from .vehicle import vehicle_yaml as _vehicle_yaml
 from ._proto import paddock_pb2 as pb
 from .render import DEFAULT_WIDTH, RENDER_MODES, Window, frames_of
+from .inprocess import IN_PROCESS, InProcess
 from .server import LocalServer
 from .transport import Connection
 
@@ -328,6 +333,11 @@ class _Owned:
     """The connection (and local server) an env opened for itself."""
 
     def __init__(self, endpoint: str | None, timeout: float, threads: int) -> None:
+        self.server: LocalServer | None = None
+        self.conn: Connection | InProcess
+        if endpoint == IN_PROCESS:
+            self.conn = InProcess(timeout=timeout)
+            return
         self.server = LocalServer(threads=threads).start() if endpoint is None else None
         self.conn = Connection(self.server.endpoint if self.server else endpoint, timeout=timeout)
 
@@ -350,8 +360,9 @@ def _render_fps(frame_skip: int) -> int | float:
 class F110Env(gym.Env):
     """One F1TENTH environment stepped on a Paddock worker.
 
-    ``endpoint``: a broker's client endpoint (``tcp://HOST:PORT``), or None to start a
-    local ``paddock serve`` that :meth:`close` stops. Other arguments: see
+    ``endpoint``: a broker's client endpoint (``tcp://HOST:PORT``), None to start a
+    local ``paddock serve`` that :meth:`close` stops, or :data:`paddock.IN_PROCESS` to
+    run the simulator inside this process (:mod:`paddock.inprocess`). Other arguments: see
     :class:`EnvSession`. ``reset(options={"poses": [[x, y, theta], ...]})`` places the cars.
 
     ``render_mode="rgb_array"``: :meth:`render` returns a top-down frame (height, width, 3)

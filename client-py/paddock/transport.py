@@ -52,6 +52,20 @@ def _check_z85_key(value: str) -> str | None:
     return None
 
 
+def read_model(path: str) -> bytes:
+    """The bytes of the ONNX model file ``path``, at most ``MAX_MODEL_BYTES``; ValueError
+    naming the driver otherwise."""
+    try:
+        size = os.path.getsize(path)
+        if size > MAX_MODEL_BYTES:
+            raise ValueError(f"{path}: {size} bytes is over the {MAX_MODEL_BYTES}-byte "
+                             "model limit")
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError as e:
+        raise ValueError(f"driver {path!r}: cannot read the model file: {e}") from e
+
+
 def fingerprint(public: bytes) -> str:
     """The first 8 hex digits of the SHA-256 of a Z85 public key's 32 bytes: the same
     fingerprint the broker logs when it refuses a key and the ``paddock`` CLI reports."""
@@ -449,15 +463,7 @@ class Connection:
             return text
         name = self._models.get(text)
         if name is None:
-            try:
-                size = os.path.getsize(text)
-                if size > MAX_MODEL_BYTES:
-                    raise ValueError(f"{text}: {size} bytes is over the {MAX_MODEL_BYTES}-byte "
-                                     "model limit")
-                with open(text, "rb") as f:
-                    data = f.read()
-            except OSError as e:
-                raise ValueError(f"driver {text!r}: cannot read the model file: {e}") from e
+            data = read_model(text)
             digest = hashlib.sha256(data).hexdigest()
             stored = self.request("put_blob", pb.PutBlob(data=data), "blob_stored")
             if stored.hash != digest:

@@ -3,7 +3,9 @@ folder, first `pip install ./client-py` (not editable, with $PADDOCK_BIN, the bi
 under test), then the wheel scripts/wheel.sh builds from that binary. Each is run from a
 folder outside the checkout: shipped map names resolve through the server (nothing is
 read beside the installed package), a map given as a path is uploaded, and with the wheel
-the env starts the `paddock` binary the wheel installed, with nothing else in sight."""
+the env starts the `paddock` binary the wheel installed, with nothing else in sight; and
+`endpoint=paddock.IN_PROCESS` loads the in-process simulator's library the wheel put
+beside the package (the plain package: the one beside $PADDOCK_BIN)."""
 
 from __future__ import annotations
 
@@ -22,19 +24,23 @@ USER = textwrap.dedent("""
     import gymnasium as gym
     import numpy as np
     import paddock
+    from paddock.inprocess import find_library
     from paddock.server import find_paddock
 
-    venv, harbour, binary = sys.argv[1], sys.argv[2], sys.argv[3]
+    venv, harbour, binary, library = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4]
     assert paddock.__file__.startswith(venv), paddock.__file__
     assert find_paddock() == binary, find_paddock()
-    for m in ("lakeside", "QUARRY", harbour):
-        env = gym.make("paddock/F110-v0", map=m, num_beams=108, time_limit=5.0, threads=1)
-        obs, _ = env.reset(seed=1)
-        obs, reward, terminated, truncated, _ = env.step(
-            np.zeros(env.action_space.shape, dtype=np.float32))
-        assert obs["scans"].shape == (1, 108) and not terminated
-        env.close()
-        print("stepped", m)
+    assert find_library() == library, find_library()
+    for endpoint in (None, paddock.IN_PROCESS):
+        for m in ("lakeside", "QUARRY", harbour):
+            env = gym.make("paddock/F110-v0", endpoint=endpoint, map=m, num_beams=108,
+                           time_limit=5.0, threads=1)
+            obs, _ = env.reset(seed=1)
+            obs, reward, terminated, truncated, _ = env.step(
+                np.zeros(env.action_space.shape, dtype=np.float32))
+            assert obs["scans"].shape == (1, 108) and not terminated
+            env.close()
+            print("stepped", m, endpoint)
 """)
 
 
@@ -74,13 +80,17 @@ def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
         shutil.copytree(ROOT / "client-py", src,
                         ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__", "tests"))
         run(pip + [str(src)], cwd=elsewhere)
-        out = run([py, str(script), str(venv), harbour, binary], cwd=elsewhere,
+        # the in-process simulator's library: the one beside the binary under test
+        library = str(Path(binary).resolve().parent / "libpaddock_embed.so")
+        out = run([py, str(script), str(venv), harbour, binary, library], cwd=elsewhere,
                   env={**env, "PADDOCK_BIN": binary})
-        assert out.stdout.count("stepped") == 3, out.stdout
+        assert out.stdout.count("stepped") == 6, out.stdout
 
     # the wheel: the package and its binary, nothing else needed
     run([py, "-m", "pip", "uninstall", "-q", "-y", "paddock"])
     run(pip + [str(wheel)], cwd=elsewhere)
-    out = run([py, str(script), str(venv), harbour, str(venv / "bin" / "paddock")],
-              cwd=elsewhere, env=env)
-    assert out.stdout.count("stepped") == 3, out.stdout
+    site = run([py, "-c", "import paddock, os; print(os.path.dirname(paddock.__file__))"],
+               cwd=elsewhere, env=env).stdout.strip()
+    out = run([py, str(script), str(venv), harbour, str(venv / "bin" / "paddock"),
+               str(Path(site) / "_native" / "libpaddock_embed.so")], cwd=elsewhere, env=env)
+    assert out.stdout.count("stepped") == 6, out.stdout

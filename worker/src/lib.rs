@@ -53,6 +53,15 @@ use paddock_sim::params::VehicleParams;
 
 pub use serve::Worker;
 
+/// What a caught panic says: its message, or "unknown panic".
+pub fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
 /// Errors that stop a worker (bad input from the broker never does).
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {

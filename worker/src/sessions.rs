@@ -353,11 +353,7 @@ fn unknown_session(id: u64) -> Error {
 /// Runs `f`, turning a panic into an `INTERNAL` error.
 fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, Error> {
     std::panic::catch_unwind(AssertUnwindSafe(f)).map_err(|p| {
-        let what = p
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| p.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "unknown panic".into());
+        let what = crate::panic_message(p.as_ref());
         error(
             ErrorCode::Internal,
             "",

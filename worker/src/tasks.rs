@@ -110,11 +110,7 @@ impl Runner {
                 }
                 Err(panic) => {
                     stats.task_errors.fetch_add(1, Ordering::Relaxed);
-                    let what = panic
-                        .downcast_ref::<&str>()
-                        .map(|s| s.to_string())
-                        .or_else(|| panic.downcast_ref::<String>().cloned())
-                        .unwrap_or_else(|| "unknown panic".into());
+                    let what = crate::panic_message(panic.as_ref());
                     error_outcome(error(
                         ErrorCode::Internal,
                         "",

@@ -1,0 +1,224 @@
+"""The simulator inside this process: env sessions without a server.
+
+``paddock.make_vec(64, paddock.IN_PROCESS, map="lakeside")`` (and ``F110Env``,
+``gymnasium.make(..., endpoint=paddock.IN_PROCESS)``, the PettingZoo and SB3 envs) runs
+the env sessions that a local ``paddock serve`` worker would host inside the learner's own
+process, through the ``paddock_embed`` library: the wheel ships it beside this package;
+``$PADDOCK_EMBED_LIB`` names another; in a source checkout it is found beside
+``$PADDOCK_BIN`` or in cargo's target folder (``cargo build --release -p paddock-embed``).
+
+Requests and replies are the wire's own protobuf messages and frames, handled by the
+worker's own code, so an in-process session checks its arguments, refuses bad ones and
+produces observations bit for bit as a server session with the same seeds does. What it
+saves is the way there: no broker hop, no socket threads, no other processes taking turns
+on the CPU; a step costs the simulation and one copy of its frames. The library is called
+with the GIL released (``ctypes``), so the learner's other threads run during a step.
+A bug in the simulator that would end a worker's session (a panic) ends it here too, as
+an error; the process keeps running.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from google.protobuf.message import Message
+
+from . import errors
+from ._proto import paddock_pb2 as pb
+from .maps import find_map_dir, read_bundle, server_map
+from .transport import DEFAULT_TIMEOUT, read_model
+
+IN_PROCESS = "in-process"
+"""The ``endpoint`` that runs the simulator inside this process."""
+
+ABI_VERSION = 1
+_ENV, _PUT_MAP, _PUT_BLOB, _SHIPPED = 1, 2, 3, 4
+
+
+def _library_name() -> str:
+    if sys.platform == "darwin":
+        return "libpaddock_embed.dylib"
+    if sys.platform == "win32":
+        return "paddock_embed.dll"
+    return "libpaddock_embed.so"
+
+
+def find_library() -> str:
+    """The ``paddock_embed`` library: ``$PADDOCK_EMBED_LIB``; the wheel's copy in this
+    package's ``_native/``; beside ``$PADDOCK_BIN``; then the source tree's cargo target
+    folder (``$CARGO_TARGET_DIR`` or ``target/``, release before debug)."""
+    env = os.environ.get("PADDOCK_EMBED_LIB")
+    if env:
+        return env
+    name = _library_name()
+    candidates = [Path(__file__).resolve().parent / "_native" / name]
+    if os.environ.get("PADDOCK_BIN"):
+        candidates.append(Path(os.environ["PADDOCK_BIN"]).resolve().parent / name)
+    repo = Path(__file__).resolve().parents[2]
+    roots = [Path(os.environ["CARGO_TARGET_DIR"])] if os.environ.get("CARGO_TARGET_DIR") else []
+    roots.append(repo / "target")
+    candidates += [root / profile / name for root in roots for profile in ("release", "debug")]
+    for p in candidates:
+        if p.is_file():
+            return str(p)
+    raise errors.ServerStartError(
+        f"no {name} for the in-process simulator: set PADDOCK_EMBED_LIB, install the paddock "
+        "wheel, or build it with `cargo build --release -p paddock-embed`"
+    )
+
+
+_LIB: ctypes.CDLL | None = None
+_LIB_LOCK = threading.Lock()
+
+
+def _library() -> ctypes.CDLL:
+    """The library, loaded once per process, its ABI version checked."""
+    global _LIB
+    with _LIB_LOCK:
+        if _LIB is None:
+            path = find_library()
+            try:
+                lib = ctypes.CDLL(path)
+            except OSError as e:
+                raise errors.ServerStartError(f"cannot load {path}: {e}") from e
+            lib.paddock_embed_abi_version.restype = ctypes.c_uint32
+            lib.paddock_embed_abi_version.argtypes = []
+            got = lib.paddock_embed_abi_version()
+            if got != ABI_VERSION:
+                raise errors.ServerStartError(
+                    f"{path} speaks ABI version {got}, this package {ABI_VERSION}: "
+                    "install the library and the package from one build")
+            lib.paddock_embed_new.restype = ctypes.c_void_p
+            lib.paddock_embed_new.argtypes = []
+            lib.paddock_embed_free.restype = None
+            lib.paddock_embed_free.argtypes = [ctypes.c_void_p]
+            lib.paddock_embed_call.restype = ctypes.c_int64
+            lib.paddock_embed_call.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64,
+                                               ctypes.c_int32, ctypes.c_char_p, ctypes.c_size_t]
+            lib.paddock_embed_frame.restype = ctypes.c_size_t
+            lib.paddock_embed_frame.argtypes = [ctypes.c_void_p, ctypes.c_size_t,
+                                                ctypes.POINTER(ctypes.c_void_p)]
+            _LIB = lib
+        return _LIB
+
+
+class Frame:
+    """One reply frame: its bytes (``.bytes``, as a ``zmq.Frame``), read in place by
+    numpy through ``.buffer``."""
+
+    __slots__ = ("bytes",)
+
+    def __init__(self, data: bytes) -> None:
+        self.bytes = data
+
+    @property
+    def buffer(self) -> memoryview:
+        return memoryview(self.bytes)
+
+
+class InProcess:
+    """Env sessions inside this process, with the methods of
+    :class:`paddock.transport.Connection` that envs use (``env``, ``map_ref``,
+    ``driver_name``, ``status``, ``close``); ``endpoint`` is :data:`IN_PROCESS`."""
+
+    endpoint = IN_PROCESS
+
+    def __init__(self, timeout: float = DEFAULT_TIMEOUT) -> None:
+        self.timeout = float(timeout)
+        self._lib = _library()
+        self._lock = threading.Lock()
+        self._handle = self._lib.paddock_embed_new()
+        if not self._handle:
+            raise errors.ServerStartError(
+                "the in-process simulator could not create its map cache in the temporary "
+                "directory (TMPDIR)")
+        self._maps: dict[str, pb.MapRef] = {}
+        self._models: dict[str, str] = {}
+
+    def _call(self, kind: int, payload: bytes = b"", session: int = 0,
+              op: int = 0) -> list[Frame]:
+        with self._lock:
+            if not self._handle:
+                raise errors.PaddockError("the in-process simulator is closed")
+            n = self._lib.paddock_embed_call(self._handle, kind, session, op, payload, len(payload))
+            count = 1 if n < 0 else n
+            frames = []
+            data = ctypes.c_void_p()
+            for i in range(count):
+                size = self._lib.paddock_embed_frame(self._handle, i, ctypes.byref(data))
+                frames.append(Frame(ctypes.string_at(data.value, size) if size else b""))
+        if n < 0:
+            if n == -1:
+                e = pb.Error.FromString(frames[0].bytes)
+                raise errors.from_reply(e.code, e.field, e.message)
+            raise errors.ServerStartError(f"the in-process simulator answered {n}")
+        return frames
+
+    def env(self, session_id: int, op: int, msg: Message | None = None,
+            timeout: float | None = None) -> tuple[pb.EnvReply, list[Frame]]:
+        """A request on env session ``session_id`` (0 to open one), as
+        :meth:`paddock.transport.Connection.env`: the reply's header and payload frames; a
+        refusal is raised. ``timeout`` is accepted for the same signature (the call returns
+        when the step is done)."""
+        payload = b"" if msg is None else msg.SerializeToString()
+        frames = self._call(_ENV, payload, session_id, op)
+        header = pb.EnvReply.FromString(frames[0].bytes)
+        if header.HasField("error"):
+            e = header.error
+            raise errors.from_reply(e.code, e.field, e.message)
+        return header, frames[1:]
+
+    def map_ref(self, map: str) -> pb.MapRef:
+        """The reference of map ``map``: a map on this machine (a directory, a map YAML, a
+        folder in ``PADDOCK_MAPS``) is checked and kept for this object's sessions;
+        otherwise the name of a map the library ships."""
+        ref = self._maps.get(map)
+        if ref is None:
+            d = find_map_dir(map)
+            if d is not None:
+                b = read_bundle(map, d)
+                ref = pb.MapRef.FromString(self._call(_PUT_MAP, b.to_proto().SerializeToString())[0].bytes)
+            else:
+                ref = server_map(map, list(self.status().maps))
+            self._maps[map] = ref
+        return ref
+
+    def driver_name(self, driver: str | os.PathLike[str]) -> str:
+        """A driver's name as given, or for an ONNX model file (``*.onnx``) the
+        ``onnx:<sha256>`` name it is registered under in this process."""
+        text = os.fspath(driver)
+        if not text.lower().endswith(".onnx"):
+            return text
+        name = self._models.get(text)
+        if name is None:
+            name = self._call(_PUT_BLOB, read_model(text))[0].bytes.decode()
+            self._models[text] = name
+        return name
+
+    def status(self, timeout: float | None = None) -> pb.BrokerStatus:
+        """What a broker's status says of its maps: the maps the library ships."""
+        return pb.BrokerStatus.FromString(self._call(_SHIPPED)[0].bytes)
+
+    def close(self) -> None:
+        """Ends every session and frees the library's handle (and its map cache)."""
+        with self._lock:
+            if self._handle:
+                self._lib.paddock_embed_free(self._handle)
+                self._handle = None
+
+    def __enter__(self) -> "InProcess":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass

@@ -1,0 +1,114 @@
+"""The simulator inside the learner's process (``endpoint=paddock.IN_PROCESS``) against a
+real `paddock serve`: the same observations bit for bit, the same refusals, gymnasium's
+checker, local maps and ONNX opponents."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import paddock
+from paddock import errors
+from paddock._proto import paddock_pb2 as pb
+from paddock.inprocess import InProcess
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def rollout(endpoint: str, n: int, steps: int, **kw) -> list[tuple]:
+    """Observations, rewards and flags of a vector env driven by seeded random actions
+    (some cars crash, so the autoreset runs too)."""
+    env = paddock.make_vec(n, endpoint, **kw)
+    rng = np.random.default_rng(5)
+    try:
+        out = [env.reset(seed=11)]
+        for _ in range(steps):
+            a = np.column_stack([rng.uniform(-0.4, 0.4, n), rng.uniform(0.5, 6.0, n)])
+            out.append(env.step(a.astype(np.float32)))
+        return out
+    finally:
+        env.close()
+
+
+def test_in_process_equals_the_server_bit_for_bit(endpoint: str) -> None:
+    kw = dict(num_beams=1080, time_limit=1.5, frame_skip=3, num_agents=2)
+    local = rollout(paddock.IN_PROCESS, 6, 80, **kw)
+    served = rollout(endpoint, 6, 80, **kw)
+    ended = 0
+    for a, b in zip(local, served):
+        for x, y in zip(a, b):
+            if isinstance(x, dict):
+                assert x.keys() == y.keys()
+                for k in x:
+                    np.testing.assert_array_equal(x[k], y[k], err_msg=k)
+            else:
+                np.testing.assert_array_equal(x, y)
+        if len(a) == 5:
+            ended += int(a[2].sum() + a[3].sum())
+    assert ended > 0, "no env ended: the autoreset went untested"
+    assert local[-1][0]["scans"].shape == (6, 1, 1080)
+
+
+def test_check_env_passes_in_process() -> None:
+    env = gym.make("paddock/F110-v0", endpoint=paddock.IN_PROCESS, map="lakeside", num_beams=108)
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+        obs, _ = env.reset(seed=3)
+        assert env.observation_space.contains(obs)
+        frame = env.unwrapped.session.render()
+        assert frame.ndim == 4 and frame.shape[-1] == 3
+    finally:
+        env.close()
+
+
+def test_refusals_name_the_field_and_the_session_goes_on() -> None:
+    with pytest.raises(FileNotFoundError, match="no-such-map"):
+        paddock.make_vec(1, paddock.IN_PROCESS, map="no-such-map")
+    with pytest.raises(errors.InvalidArgument) as e:
+        paddock.make_vec(1, paddock.IN_PROCESS, num_agents=2, opponents=["nobody"])
+    assert e.value.field == "env_open.opponents[0].driver"
+    env = gym.make("paddock/F110-v0", endpoint=paddock.IN_PROCESS, num_beams=16)
+    try:
+        env.reset(seed=0)
+        with pytest.raises(errors.InvalidArgument) as e:
+            env.step(np.array([0.0, np.nan], dtype=np.float32))
+        assert e.value.field == "env_step.actions[1]"
+        env.step(np.array([0.0, 1.0], dtype=np.float32))
+    finally:
+        env.close()
+    with InProcess() as conn:
+        with pytest.raises(errors.NotFound) as e:
+            conn.env(0, pb.ENV_OPEN, pb.EnvOpen(map=pb.MapRef(name="x", hash="ab" * 32),
+                                                num_envs=1, laps=1, time_limit=10, frame_skip=1))
+        assert e.value.field == "env_open.map.hash"
+        with pytest.raises(errors.NotFound) as e:
+            conn.env(987654, pb.ENV_STEP, pb.EnvStep())
+        assert e.value.field == "env_request.session_id"
+    with pytest.raises(errors.PaddockError, match="closed"):
+        conn.status()
+
+
+def test_a_map_directory_and_an_onnx_opponent_in_process(tmp_path: Path) -> None:
+    onnx = pytest.importorskip("onnx")
+    from test_onnx import mlp_model
+
+    track = tmp_path / "harbour-copy"
+    shutil.copytree(ROOT / "maps" / "harbour", track)
+    model = tmp_path / "opponent.onnx"
+    model.write_bytes(mlp_model(beams=64))
+    assert onnx.load(str(model)).graph.input[0].name == "scans"
+    env = paddock.make_vec(2, paddock.IN_PROCESS, map=str(track), num_beams=64, num_agents=2,
+                           opponents=[str(model)])
+    try:
+        obs, _ = env.reset(seed=4)
+        for _ in range(20):
+            obs, *_ = env.step(np.tile(np.array([0.0, 1.0], dtype=np.float32), (2, 1)))
+        # the opponent (car 1) drove away from its start
+        assert np.all(obs["linear_vels_x"][:, 1] > 0.1)
+    finally:
+        env.close()

@@ -1,0 +1,270 @@
+//! Env sessions inside the learner's own process.
+//!
+//! A learner on one machine reaches the simulator through a local `paddock serve`: its
+//! requests cross a socket to the broker, then another to the worker thread, and every
+//! observation comes back the same way. For a vector env on one core those hops, the
+//! socket threads and the three processes' turns on the CPU cost a fifth to a third of
+//! what the simulation itself does (docs/performance-vecenv.md). Here the worker's own
+//! [`Sessions`] run in the caller's process instead, behind a small C ABI that the Python
+//! package loads with `ctypes`: requests and replies are the very protobuf messages and
+//! payload frames a client and a worker exchange, so the checks, the error replies, the
+//! observations and their bits are the worker's, and the client decodes them with the
+//! code it uses for a server.
+//!
+//! A handle ([`Embedded`]) serves these requests (`kind` of [`paddock_embed_call`]):
+//! - [`ENV`]: an env request (`EnvRequest.op` and its payload) on session `session`; 0
+//!   opens one (the handle gives the ids, as the broker does). Frames: the encoded
+//!   `EnvReply`, then its payload frames.
+//! - [`PUT_MAP`]: a `MapBundle`, checked and kept in the handle's map cache (a temporary
+//!   directory removed with the handle). Frames: the encoded `MapRef`.
+//! - [`PUT_BLOB`]: an ONNX model's bytes, registered with this process. Frames: its
+//!   `onnx:<sha256>` driver name.
+//! - [`SHIPPED`]: the maps compiled into the library. Frames: a `BrokerStatus` with only
+//!   its `maps` set.
+//!
+//! A refused request answers -1 and one frame, the encoded `Error` (code, field,
+//! message), as a server would reply. A panic (a bug) becomes an `INTERNAL` error, never
+//! an unwind into the caller. One handle serves one caller at a time (the Python side
+//! holds a lock around each call); handles are independent of each other.
+
+use std::panic::AssertUnwindSafe;
+
+use paddock_proto::{BrokerStatus, EnvOp, Error, ErrorCode, MapBundle, error};
+use paddock_sim::circuit::Circuits;
+use paddock_worker::maps::MapCache;
+use paddock_worker::sessions::Sessions;
+use prost::Message;
+
+/// The version of the C ABI below; the Python side refuses a library of another.
+pub const ABI_VERSION: u32 = 1;
+
+/// Request kinds of [`paddock_embed_call`].
+pub const ENV: u32 = 1;
+pub const PUT_MAP: u32 = 2;
+pub const PUT_BLOB: u32 = 3;
+pub const SHIPPED: u32 = 4;
+
+/// Most bytes of one model ([`PUT_BLOB`]): the broker's limit for a stored blob.
+pub const MAX_MODEL_BYTES: usize = 64 << 20;
+
+/// Env sessions, their map cache, and the frames of the last reply.
+pub struct Embedded {
+    sessions: Sessions,
+    cache: MapCache,
+    /// Removed with the handle.
+    _dir: tempfile::TempDir,
+    next_session: u64,
+    out: Vec<Vec<u8>>,
+}
+
+impl std::fmt::Debug for Embedded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Embedded")
+            .field("sessions", &self.sessions.count())
+            .field("cache", &self.cache.root())
+            .finish()
+    }
+}
+
+impl Embedded {
+    /// A handle with no sessions, its map cache in a new temporary directory.
+    pub fn new() -> std::io::Result<Self> {
+        let dir = tempfile::Builder::new()
+            .prefix("paddock-embed-maps-")
+            .tempdir()?;
+        let cache = MapCache::open(dir.path())?;
+        let mut sessions = Sessions::new();
+        sessions.set_map_cache(cache.clone());
+        sessions.set_circuits(Circuits::new());
+        Ok(Self {
+            sessions,
+            cache,
+            _dir: dir,
+            next_session: 1,
+            out: Vec::new(),
+        })
+    }
+
+    /// The reply frames to request `kind` (see the module docs), or the error.
+    pub fn call(
+        &mut self,
+        kind: u32,
+        session: u64,
+        op: i32,
+        payload: &[u8],
+    ) -> Result<Vec<Vec<u8>>, Error> {
+        match kind {
+            ENV => Ok(self.env(session, op, payload)),
+            PUT_MAP => {
+                let bundle = MapBundle::decode(payload).map_err(|e| {
+                    error(
+                        ErrorCode::BadMessage,
+                        "put_map.bundle",
+                        format!("put_map.bundle: {} bytes do not decode: {e}", payload.len()),
+                    )
+                })?;
+                self.cache.store(&bundle)?;
+                Ok(vec![paddock_wire::map_ref(&bundle).encode_to_vec()])
+            }
+            PUT_BLOB => {
+                if payload.len() > MAX_MODEL_BYTES {
+                    return Err(error(
+                        ErrorCode::InvalidArgument,
+                        "put_blob.data",
+                        format!(
+                            "put_blob.data: {} bytes is over the {MAX_MODEL_BYTES}-byte limit",
+                            payload.len()
+                        ),
+                    ));
+                }
+                let hash = paddock_policy::onnx::model_hash(payload);
+                paddock_wire::register_model(&hash, payload)
+                    .map_err(|refused| refused.to_error("put_blob.data"))?;
+                Ok(vec![paddock_policy::onnx::model_name(&hash).into_bytes()])
+            }
+            SHIPPED => {
+                let status = BrokerStatus {
+                    maps: paddock_wire::shipped_bundles()
+                        .iter()
+                        .map(paddock_wire::map_ref)
+                        .collect(),
+                    ..Default::default()
+                };
+                Ok(vec![status.encode_to_vec()])
+            }
+            _ => Err(error(
+                ErrorCode::InvalidArgument,
+                "kind",
+                format!("kind = {kind} is not a request this library serves (1-4)"),
+            )),
+        }
+    }
+
+    /// An env request's reply: its header, then its payload frames.
+    fn env(&mut self, session: u64, op: i32, payload: &[u8]) -> Vec<Vec<u8>> {
+        let id = if session == 0 && op == EnvOp::EnvOpen as i32 {
+            self.next_session += 1;
+            self.next_session - 1
+        } else {
+            session
+        };
+        let reply = self.sessions.handle(id, op, payload);
+        let mut frames = Vec::with_capacity(1 + reply.frames.len());
+        frames.push(reply.header.encode_to_vec());
+        frames.extend(reply.frames);
+        frames
+    }
+
+    /// [`Embedded::call`] with a panic turned into an `INTERNAL` error; the reply (or the
+    /// encoded error) is kept as the handle's frames. Returns the number of frames, or
+    /// -1 for an error.
+    pub fn serve(&mut self, kind: u32, session: u64, op: i32, payload: &[u8]) -> i64 {
+        let result =
+            std::panic::catch_unwind(AssertUnwindSafe(|| self.call(kind, session, op, payload)))
+                .unwrap_or_else(|panic| {
+                    let what = paddock_worker::panic_message(panic.as_ref());
+                    Err(error(
+                        ErrorCode::Internal,
+                        "",
+                        format!("the in-process simulator failed: {what}"),
+                    ))
+                });
+        match result {
+            Ok(frames) => {
+                self.out = frames;
+                self.out.len() as i64
+            }
+            Err(e) => {
+                self.out = vec![e.encode_to_vec()];
+                -1
+            }
+        }
+    }
+
+    /// The frames of the last reply.
+    pub fn frames(&self) -> &[Vec<u8>] {
+        &self.out
+    }
+}
+
+/// The C ABI's version ([`ABI_VERSION`]).
+#[unsafe(no_mangle)]
+pub extern "C" fn paddock_embed_abi_version() -> u32 {
+    ABI_VERSION
+}
+
+/// A new handle, or null when its map cache cannot be created (the temporary directory).
+/// Free it with [`paddock_embed_free`].
+#[unsafe(no_mangle)]
+pub extern "C" fn paddock_embed_new() -> *mut Embedded {
+    match std::panic::catch_unwind(Embedded::new) {
+        Ok(Ok(h)) => Box::into_raw(Box::new(h)),
+        _ => std::ptr::null_mut(),
+    }
+}
+
+/// Frees a handle from [`paddock_embed_new`] (its sessions and its map cache).
+///
+/// # Safety
+/// `h` must come from [`paddock_embed_new`] and not have been freed; null is ignored.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn paddock_embed_free(h: *mut Embedded) {
+    if !h.is_null() {
+        // SAFETY: the caller passes a live handle from `paddock_embed_new`.
+        let handle = unsafe { Box::from_raw(h) };
+        let _ = std::panic::catch_unwind(AssertUnwindSafe(move || drop(handle)));
+    }
+}
+
+/// Serves request `kind` (see the module docs) with `len` bytes of payload at
+/// `payload`: the number of reply frames, or -1 and one frame holding the encoded
+/// `Error`; -2 for a null handle. The frames stay valid until the handle's next call.
+///
+/// # Safety
+/// `h` must be a live handle used by one thread at a time; `payload` must point to `len`
+/// readable bytes (it may be null when `len` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn paddock_embed_call(
+    h: *mut Embedded,
+    kind: u32,
+    session: u64,
+    op: i32,
+    payload: *const u8,
+    len: usize,
+) -> i64 {
+    // SAFETY: the caller passes a live handle, used by this thread alone.
+    let Some(h) = (unsafe { h.as_mut() }) else {
+        return -2;
+    };
+    let payload = if len == 0 || payload.is_null() {
+        &[][..]
+    } else {
+        // SAFETY: the caller guarantees `len` readable bytes at `payload`.
+        unsafe { std::slice::from_raw_parts(payload, len) }
+    };
+    h.serve(kind, session, op, payload)
+}
+
+/// Frame `i` of the last reply: its length, its address written to `data` (null and 0
+/// past the last frame).
+///
+/// # Safety
+/// `h` must be a live handle; `data` must be writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn paddock_embed_frame(
+    h: *const Embedded,
+    i: usize,
+    data: *mut *const u8,
+) -> usize {
+    // SAFETY: the caller passes a live handle.
+    let frame = unsafe { h.as_ref() }.and_then(|h| h.frames().get(i));
+    let (ptr, len) = frame.map_or((std::ptr::null(), 0), |f| (f.as_ptr(), f.len()));
+    if !data.is_null() {
+        // SAFETY: the caller passes a writable pointer.
+        unsafe { *data = ptr };
+    }
+    len
+}
+
+#[cfg(test)]
+mod tests;
