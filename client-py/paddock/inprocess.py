@@ -15,6 +15,13 @@ on the CPU; a step costs the simulation and one copy of its frames. The library 
 with the GIL released (``ctypes``), so the learner's other threads run during a step.
 A bug in the simulator that would end a worker's session (a panic) ends it here too, as
 an error; the process keeps running.
+
+A vector env's copies step on the library's thread pool, as a worker's sessions do: one
+thread per core this process may run on (``RAYON_NUM_THREADS`` sets another count; a
+process pinned to one core steps on the calling thread alone); ``threads=`` applies to a
+local server only. That pool does not survive ``fork``: a process that forks after
+stepping an in-process env must create its children's envs with the ``spawn`` or
+``forkserver`` start method (Stable-Baselines3's ``SubprocVecEnv(start_method=...)``).
 """
 
 from __future__ import annotations
@@ -134,9 +141,7 @@ class InProcess:
         self._lock = threading.Lock()
         self._handle = self._lib.paddock_embed_new()
         if not self._handle:
-            raise errors.ServerStartError(
-                "the in-process simulator could not create its map cache in the temporary "
-                "directory (TMPDIR)")
+            raise errors.ServerStartError("the in-process simulator could not start (a bug)")
         self._maps: dict[str, pb.MapRef] = {}
         self._models: dict[str, str] = {}
 
@@ -175,8 +180,8 @@ class InProcess:
 
     def map_ref(self, map: str) -> pb.MapRef:
         """The reference of map ``map``: a map on this machine (a directory, a map YAML, a
-        folder in ``PADDOCK_MAPS``) is checked and kept for this object's sessions;
-        otherwise the name of a map the library ships."""
+        folder in ``PADDOCK_MAPS``) is checked and copied into a temporary map cache that
+        :meth:`close` removes; otherwise the name of a map the library ships."""
         ref = self._maps.get(map)
         if ref is None:
             d = find_map_dir(map)

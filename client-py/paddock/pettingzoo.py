@@ -37,7 +37,8 @@ from .render import DEFAULT_WIDTH
 class ParallelEnv(_ParallelEnv):
     """``num_agents`` learner cars racing each other (and ``opponents``) on one worker.
 
-    ``endpoint=None`` starts a local ``paddock serve`` that :meth:`close` stops. Other
+    ``endpoint=None`` starts a local ``paddock serve`` that :meth:`close` stops;
+    ``endpoint=paddock.IN_PROCESS`` runs the simulator in this process. Other
     keyword arguments go to the env session as for ``gymnasium.make("paddock/F110-v0")``:
     ``map``, ``laps``, ``time_limit``, ``reward``, ``frame_skip``, ``num_beams``,
     ``collision_mode``, ``params``, ``vehicle`` (every car's physics), ``seed``, ...

@@ -112,3 +112,16 @@ def test_a_map_directory_and_an_onnx_opponent_in_process(tmp_path: Path) -> None
         assert np.all(obs["linear_vels_x"][:, 1] > 0.1)
     finally:
         env.close()
+
+
+def test_pettingzoo_api_test_passes_in_process() -> None:
+    pytest.importorskip("pettingzoo")
+    from pettingzoo.test import parallel_api_test
+
+    from paddock.pettingzoo import parallel_env
+
+    env = parallel_env(num_agents=2, endpoint=paddock.IN_PROCESS, num_beams=64)
+    try:
+        parallel_api_test(env, num_cycles=50)
+    finally:
+        env.close()

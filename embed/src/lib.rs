@@ -16,7 +16,8 @@
 //!   opens one (the handle gives the ids, as the broker does). Frames: the encoded
 //!   `EnvReply`, then its payload frames.
 //! - [`PUT_MAP`]: a `MapBundle`, checked and kept in the handle's map cache (a temporary
-//!   directory removed with the handle). Frames: the encoded `MapRef`.
+//!   directory made on the first map put and removed with the handle; a handle that only
+//!   opens shipped maps writes nothing). Frames: the encoded `MapRef`.
 //! - [`PUT_BLOB`]: an ONNX model's bytes, registered with this process. Frames: its
 //!   `onnx:<sha256>` driver name.
 //! - [`SHIPPED`]: the maps compiled into the library. Frames: a `BrokerStatus` with only
@@ -50,39 +51,59 @@ pub const MAX_MODEL_BYTES: usize = 64 << 20;
 /// Env sessions, their map cache, and the frames of the last reply.
 pub struct Embedded {
     sessions: Sessions,
-    cache: MapCache,
-    /// Removed with the handle.
-    _dir: tempfile::TempDir,
+    /// Made on the first map put; its directory is removed with the handle.
+    cache: Option<(MapCache, tempfile::TempDir)>,
     next_session: u64,
     out: Vec<Vec<u8>>,
+}
+
+impl Default for Embedded {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl std::fmt::Debug for Embedded {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Embedded")
             .field("sessions", &self.sessions.count())
-            .field("cache", &self.cache.root())
+            .field("cache", &self.cache.as_ref().map(|(c, _)| c.root()))
             .finish()
     }
 }
 
 impl Embedded {
-    /// A handle with no sessions, its map cache in a new temporary directory.
-    pub fn new() -> std::io::Result<Self> {
-        let dir = tempfile::Builder::new()
-            .prefix("paddock-embed-maps-")
-            .tempdir()?;
-        let cache = MapCache::open(dir.path())?;
+    /// A handle with no sessions (the shipped maps at hand, no map cache yet).
+    pub fn new() -> Self {
         let mut sessions = Sessions::new();
-        sessions.set_map_cache(cache.clone());
         sessions.set_circuits(Circuits::new());
-        Ok(Self {
+        Self {
             sessions,
-            cache,
-            _dir: dir,
+            cache: None,
             next_session: 1,
             out: Vec::new(),
-        })
+        }
+    }
+
+    /// The map cache, made in a new temporary directory on first use.
+    fn cache(&mut self) -> Result<&MapCache, Error> {
+        if self.cache.is_none() {
+            let io = |e: std::io::Error| {
+                error(
+                    ErrorCode::Internal,
+                    "put_map",
+                    format!("making the in-process map cache in the temporary directory: {e}"),
+                )
+            };
+            let dir = tempfile::Builder::new()
+                .prefix("paddock-embed-maps-")
+                .tempdir()
+                .map_err(io)?;
+            let cache = MapCache::open(dir.path()).map_err(io)?;
+            self.sessions.set_map_cache(cache.clone());
+            self.cache = Some((cache, dir));
+        }
+        Ok(&self.cache.as_ref().expect("made above").0)
     }
 
     /// The reply frames to request `kind` (see the module docs), or the error.
@@ -103,7 +124,7 @@ impl Embedded {
                         format!("put_map.bundle: {} bytes do not decode: {e}", payload.len()),
                     )
                 })?;
-                self.cache.store(&bundle)?;
+                self.cache()?.store(&bundle)?;
                 Ok(vec![paddock_wire::map_ref(&bundle).encode_to_vec()])
             }
             PUT_BLOB => {
@@ -193,13 +214,12 @@ pub extern "C" fn paddock_embed_abi_version() -> u32 {
     ABI_VERSION
 }
 
-/// A new handle, or null when its map cache cannot be created (the temporary directory).
-/// Free it with [`paddock_embed_free`].
+/// A new handle (null only if making it panicked). Free it with [`paddock_embed_free`].
 #[unsafe(no_mangle)]
 pub extern "C" fn paddock_embed_new() -> *mut Embedded {
     match std::panic::catch_unwind(Embedded::new) {
-        Ok(Ok(h)) => Box::into_raw(Box::new(h)),
-        _ => std::ptr::null_mut(),
+        Ok(h) => Box::into_raw(Box::new(h)),
+        Err(_) => std::ptr::null_mut(),
     }
 }
 
