@@ -38,10 +38,7 @@ from google.protobuf.message import Message
 from . import errors
 from ._proto import paddock_pb2 as pb
 from .maps import find_map_dir, read_bundle, server_map
-from .transport import DEFAULT_TIMEOUT, read_model
-
-IN_PROCESS = "in-process"
-"""The ``endpoint`` that runs the simulator inside this process."""
+from .transport import DEFAULT_TIMEOUT, IN_PROCESS, read_model
 
 ABI_VERSION = 1
 _ENV, _PUT_MAP, _PUT_BLOB, _SHIPPED = 1, 2, 3, 4
@@ -136,6 +133,8 @@ class InProcess:
     endpoint = IN_PROCESS
 
     def __init__(self, timeout: float = DEFAULT_TIMEOUT) -> None:
+        if not timeout > 0:
+            raise ValueError(f"timeout {timeout!r} must be > 0 seconds")
         self.timeout = float(timeout)
         self._lib = _library()
         self._lock = threading.Lock()

@@ -31,6 +31,8 @@ MAX_MODEL_BYTES = 64 << 20
 
 PROTOCOL_VERSION = 2
 DEFAULT_TIMEOUT = 30.0
+IN_PROCESS = "in-process"
+"""The ``endpoint`` of envs whose simulator runs inside this process (:mod:`paddock.inprocess`)."""
 
 
 Z85_ALPHABET = "0123456789abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ.-:+=^!/*?&<>()[]{}@%$#"
@@ -190,6 +192,10 @@ class Connection:
 
     def __init__(self, endpoint: str, timeout: float = DEFAULT_TIMEOUT,
                  context: zmq.Context | None = None) -> None:
+        if endpoint == IN_PROCESS:
+            raise ValueError(f"endpoint {endpoint!r} (paddock.IN_PROCESS) runs env sessions in "
+                             "this process only; batch rollouts and jobs need a server "
+                             "(endpoint=None starts a local one)")
         if not isinstance(endpoint, str) or "://" not in endpoint:
             raise ValueError(f"endpoint {endpoint!r} is not a ZeroMQ endpoint like tcp://HOST:PORT")
         if not timeout > 0:

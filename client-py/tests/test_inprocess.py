@@ -91,6 +91,9 @@ def test_refusals_name_the_field_and_the_session_goes_on() -> None:
         assert e.value.field == "env_request.session_id"
     with pytest.raises(errors.PaddockError, match="closed"):
         conn.status()
+    # batch rollouts and jobs need a server: said so, naming the endpoint
+    with pytest.raises(ValueError, match="'in-process'.*need a server"):
+        paddock.Client(paddock.IN_PROCESS)
 
 
 def test_a_map_directory_and_an_onnx_opponent_in_process(tmp_path: Path) -> None:
