@@ -21,7 +21,8 @@ thread per core this process may run on (``RAYON_NUM_THREADS`` sets another coun
 process pinned to one core steps on the calling thread alone); ``threads=`` applies to a
 local server only. That pool does not survive ``fork``: a process that forks after
 stepping an in-process env must create its children's envs with the ``spawn`` or
-``forkserver`` start method (Stable-Baselines3's ``SubprocVecEnv(start_method=...)``).
+``forkserver`` start method (Stable-Baselines3's ``SubprocVecEnv(start_method=...)``);
+such a child is told so when it tries, instead of hanging.
 """
 
 from __future__ import annotations
@@ -78,6 +79,29 @@ def find_library() -> str:
 
 _LIB: ctypes.CDLL | None = None
 _LIB_LOCK = threading.Lock()
+# The process that first stepped through the library, and whether this process is a
+# fork of it: the library's thread pool does not survive fork (its threads are gone in
+# the child, so the child's first parallel step would wait on them forever).
+_USED_BY: int | None = None
+_FORKED_FROM: int | None = None
+
+
+def _after_fork() -> None:
+    global _FORKED_FROM
+    if _USED_BY is not None:
+        _FORKED_FROM = _USED_BY
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)
+
+
+def _check_not_forked() -> None:
+    if _FORKED_FROM is not None:
+        raise errors.ServerStartError(
+            f"the in-process simulator was used by process {_FORKED_FROM} before it forked "
+            f"this one ({os.getpid()}); its thread pool does not survive fork: start child "
+            "processes with the 'spawn' or 'forkserver' method, or use a server")
 
 
 def _library() -> ctypes.CDLL:
@@ -136,6 +160,7 @@ class InProcess:
         if not timeout > 0:
             raise ValueError(f"timeout {timeout!r} must be > 0 seconds")
         self.timeout = float(timeout)
+        _check_not_forked()
         self._lib = _library()
         self._lock = threading.Lock()
         self._handle = self._lib.paddock_embed_new()
@@ -146,6 +171,10 @@ class InProcess:
 
     def _call(self, kind: int, payload: bytes = b"", session: int = 0,
               op: int = 0) -> list[Frame]:
+        global _USED_BY
+        _check_not_forked()
+        if _USED_BY is None:
+            _USED_BY = os.getpid()
         with self._lock:
             if not self._handle:
                 raise errors.PaddockError("the in-process simulator is closed")

@@ -4,7 +4,10 @@ checker, local maps and ONNX opponents."""
 
 from __future__ import annotations
 
+import os
 import shutil
+import signal
+import time
 from pathlib import Path
 
 import gymnasium as gym
@@ -126,5 +129,38 @@ def test_pettingzoo_api_test_passes_in_process() -> None:
     env = parallel_env(num_agents=2, endpoint=paddock.IN_PROCESS, num_beams=64)
     try:
         parallel_api_test(env, num_cycles=50)
+    finally:
+        env.close()
+
+
+def test_a_fork_after_stepping_is_told_to_spawn_instead_of_hanging() -> None:
+    env = paddock.make_vec(2, paddock.IN_PROCESS, num_beams=16)
+    try:
+        env.reset(seed=0)
+        env.step(np.zeros((2, 2), dtype=np.float32))
+        pid = os.fork()
+        if pid == 0:  # the child: a new env, and the parent's env
+            code = 0
+            for attempt in (lambda: paddock.make_vec(1, paddock.IN_PROCESS, num_beams=16),
+                            lambda: env.step(np.zeros((2, 2), dtype=np.float32))):
+                try:
+                    attempt()
+                    code |= 1
+                except errors.ServerStartError as e:
+                    code |= 0 if "'spawn'" in str(e) and "fork" in str(e) else 2
+            os._exit(code)
+        deadline = time.monotonic() + 30
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            if time.monotonic() > deadline:
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+                pytest.fail("the forked child hung")
+            time.sleep(0.05)
+        assert os.waitstatus_to_exitcode(status) == 0
+        # the parent goes on
+        env.step(np.zeros((2, 2), dtype=np.float32))
     finally:
         env.close()
