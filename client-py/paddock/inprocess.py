@@ -179,17 +179,17 @@ class InProcess:
             if not self._handle:
                 raise errors.PaddockError("the in-process simulator is closed")
             n = self._lib.paddock_embed_call(self._handle, kind, session, op, payload, len(payload))
-            count = 1 if n < 0 else n
+            if n < -1:
+                raise errors.ServerStartError(f"the in-process simulator answered {n}")
             frames = []
             data = ctypes.c_void_p()
-            for i in range(count):
+            # a refusal (-1) is one frame: the encoded Error
+            for i in range(1 if n == -1 else n):
                 size = self._lib.paddock_embed_frame(self._handle, i, ctypes.byref(data))
                 frames.append(Frame(ctypes.string_at(data.value, size) if size else b""))
-        if n < 0:
-            if n == -1:
-                e = pb.Error.FromString(frames[0].bytes)
-                raise errors.from_reply(e.code, e.field, e.message)
-            raise errors.ServerStartError(f"the in-process simulator answered {n}")
+        if n == -1:
+            e = pb.Error.FromString(frames[0].bytes)
+            raise errors.from_reply(e.code, e.field, e.message)
         return frames
 
     def env(self, session_id: int, op: int, msg: Message | None = None,

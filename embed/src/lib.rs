@@ -30,6 +30,7 @@
 
 use std::panic::AssertUnwindSafe;
 
+use paddock_policy::onnx::MAX_MODEL_BYTES;
 use paddock_proto::{BrokerStatus, EnvOp, Error, ErrorCode, MapBundle, error};
 use paddock_sim::circuit::Circuits;
 use paddock_worker::maps::MapCache;
@@ -44,9 +45,6 @@ pub const ENV: u32 = 1;
 pub const PUT_MAP: u32 = 2;
 pub const PUT_BLOB: u32 = 3;
 pub const SHIPPED: u32 = 4;
-
-/// Most bytes of one model ([`PUT_BLOB`]): the broker's limit for a stored blob.
-pub const MAX_MODEL_BYTES: usize = 64 << 20;
 
 /// Env sessions, their map cache, and the frames of the last reply.
 pub struct Embedded {
@@ -163,12 +161,11 @@ impl Embedded {
 
     /// An env request's reply: its header, then its payload frames.
     fn env(&mut self, session: u64, op: i32, payload: &[u8]) -> Vec<Vec<u8>> {
-        let id = if session == 0 && op == EnvOp::EnvOpen as i32 {
+        let mut id = session;
+        if session == 0 && op == EnvOp::EnvOpen as i32 {
+            id = self.next_session;
             self.next_session += 1;
-            self.next_session - 1
-        } else {
-            session
-        };
+        }
         let reply = self.sessions.handle(id, op, payload);
         let mut frames = Vec::with_capacity(1 + reply.frames.len());
         frames.push(reply.header.encode_to_vec());
