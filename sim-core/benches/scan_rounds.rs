@@ -1,7 +1,8 @@
 //! The scan and world-step rates of every LIDAR code path this CPU has, measured in
 //! alternating rounds, for honest figures on a busy machine:
-//! `cargo bench -p paddock-sim --bench scan_rounds -- [rounds] [ms per round]`
-//! (defaults 7 and 300), best pinned to one core (`taskset -c 1`).
+//! `cargo bench -p paddock-sim --bench scan_rounds -- [rounds] [ms per round] [filter]`
+//! (defaults 7 and 300; with a filter, only the configurations whose names contain it),
+//! best pinned to one core (`taskset -c 1`).
 //!
 //! Each round times every configuration once, one after the other, so that load from
 //! other processes spreads over all of them alike; the report gives the median and the
@@ -9,8 +10,9 @@
 //! `/proc/thread-self/schedstat`), which leaves out the time other processes held the
 //! core; the wall-clock figures are printed too. Configurations: one 1080-beam scan from
 //! centreline poses on the default shipped map (and on `$PADDOCK_SHARED/maps/Spa` when
-//! that is set), and `World::step` with 1 and 2 cars, with scans on each path and
-//! without scans; each scan by the march and by the angular sweep (`... sweep`).
+//! that is set), the seeded noise of one scan, and `World::step` with 1 and 2 cars, with
+//! scans on each path and without scans; each scan by the march and by the angular sweep
+//! (`... sweep`).
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -20,6 +22,7 @@ use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
 use paddock_sim::map::Map;
+use paddock_sim::rng::Rng;
 use paddock_sim::track::Track;
 use paddock_sim::world::{Action, Starts, World, WorldConfig};
 
@@ -118,6 +121,28 @@ fn world_case<'a>(
     }
 }
 
+/// The seeded noise of one default scan: 1080 Gaussian draws added to ranges near 5 m.
+fn noise_case<'a>() -> Case<'a> {
+    let lidar = Lidar::new(LidarConfig::default());
+    let mut out = vec![5.0; lidar.num_beams()];
+    let mut rng = Rng::new(7);
+    Case {
+        name: format!("noise, {} draws", out.len()),
+        unit: "M draws/s",
+        scale: out.len() as f64 / 1e6,
+        run: Box::new(move |n| {
+            for _ in 0..n {
+                lidar.add_noise(black_box(&mut out), &mut rng);
+                // Back near 5 m, so the values stay in range over many rounds.
+                out.fill(5.0);
+            }
+        }),
+        per_round: 0,
+        cpu_rates: Vec::new(),
+        wall_rates: Vec::new(),
+    }
+}
+
 fn poses_along(track: &Track, n: usize) -> Vec<Pose> {
     (0..n)
         .map(|i| track.at(track.length() * i as f64 / n as f64).0)
@@ -137,6 +162,7 @@ fn main() {
         .collect();
     let rounds: usize = args.first().and_then(|a| a.parse().ok()).unwrap_or(7);
     let round_ms: f64 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(300.0);
+    let filter = args.get(2).cloned().unwrap_or_default();
     let paths: Vec<ScanPath> = ScanPath::ALL
         .into_iter()
         .filter(|p| p.supported())
@@ -164,6 +190,7 @@ fn main() {
             }
         }
     }
+    cases.push(noise_case());
     for agents in [1, 2] {
         cases.push(world_case(&circuit, agents, None, false));
         for sweep in [false, true] {
@@ -172,6 +199,7 @@ fn main() {
             }
         }
     }
+    cases.retain(|c| c.name.contains(&filter));
     println!(
         "CPU features: {}; {rounds} rounds of about {round_ms} ms per configuration",
         cpu_features()
