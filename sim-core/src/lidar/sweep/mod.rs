@@ -679,12 +679,14 @@ fn ahead<const PLUS: bool>(
         lines.iter().filter(|&&l| l < t).count()
     };
     // Lines are whole numbers and the origin is off every line: a line is beyond it
-    // (above) exactly when it is at least floor(g_line) + 1.
-    let origin = libm::floor(g_line) + 1.0;
+    // (above) exactly when it is at least floor(g_line) + 1. (The standard floor and
+    // ceiling, exact like any: inlined as one instruction where the caller has SSE4.1 or
+    // AVX, where `libm`'s were calls.)
+    let origin = g_line.floor() + 1.0;
     let (first, last) = if PLUS {
-        (below(origin), below(libm::ceil(g_line + reach) + 2.0))
+        (below(origin), below((g_line + reach).ceil() + 2.0))
     } else {
-        (below(libm::floor(g_line - reach) - 1.0), below(origin))
+        (below((g_line - reach).floor() - 1.0), below(origin))
     };
     runs.start + first..runs.start + last.max(first)
 }
