@@ -18,8 +18,8 @@
 //! - [`PUT_MAP`]: a `MapBundle`, checked and kept in the handle's map cache (a temporary
 //!   directory made on the first map put and removed with the handle; a handle that only
 //!   opens shipped maps writes nothing). Frames: the encoded `MapRef`.
-//! - [`PUT_BLOB`]: an ONNX model's bytes, registered with this process. Frames: its
-//!   `onnx:<sha256>` driver name.
+//! - [`PUT_BLOB`]: an ONNX model's bytes, checked and registered with this process
+//!   (`paddock_policy::onnx::register`). Frames: its `onnx:<sha256>` driver name.
 //! - [`SHIPPED`]: the maps compiled into the library. Frames: a `BrokerStatus` with only
 //!   its `maps` set.
 //!
@@ -30,7 +30,6 @@
 
 use std::panic::AssertUnwindSafe;
 
-use paddock_policy::onnx::MAX_MODEL_BYTES;
 use paddock_proto::{BrokerStatus, EnvOp, Error, ErrorCode, MapBundle, error};
 use paddock_sim::circuit::Circuits;
 use paddock_worker::maps::MapCache;
@@ -125,22 +124,17 @@ impl Embedded {
                 self.cache()?.store(&bundle)?;
                 Ok(vec![paddock_wire::map_ref(&bundle).encode_to_vec()])
             }
-            PUT_BLOB => {
-                if payload.len() > MAX_MODEL_BYTES {
-                    return Err(error(
+            // The model's own checks (its size limit, the observation contract) refuse
+            // it; registering gives its `onnx:<sha256>` name.
+            PUT_BLOB => paddock_policy::onnx::register(payload, "put_blob.data")
+                .map(|name| vec![name.as_bytes().to_vec()])
+                .map_err(|e| {
+                    error(
                         ErrorCode::InvalidArgument,
                         "put_blob.data",
-                        format!(
-                            "put_blob.data: {} bytes is over the {MAX_MODEL_BYTES}-byte limit",
-                            payload.len()
-                        ),
-                    ));
-                }
-                let hash = paddock_policy::onnx::model_hash(payload);
-                paddock_wire::register_model(&hash, payload)
-                    .map_err(|refused| refused.to_error("put_blob.data"))?;
-                Ok(vec![paddock_policy::onnx::model_name(&hash).into_bytes()])
-            }
+                        format!("put_blob.data: {e}"),
+                    )
+                }),
             SHIPPED => {
                 let status = BrokerStatus {
                     maps: paddock_wire::shipped_bundles()

@@ -132,6 +132,13 @@ fn bad_requests_are_refused_with_the_field_named() {
     assert_eq!(e.code, ErrorCode::InvalidArgument as i32);
     assert!(e.field.starts_with("put_blob.data"), "{e:?}");
 
+    let big = vec![0u8; paddock_policy::onnx::MAX_MODEL_BYTES + 1];
+    let (status, frames) = call(h, PUT_BLOB, 0, 0, &big);
+    let e = refusal(status, &frames);
+    assert_eq!(e.code, ErrorCode::InvalidArgument as i32);
+    assert_eq!(e.field, "put_blob.data");
+    assert!(e.message.contains("over the"), "{e:?}");
+
     // an unknown map hash, and a session that is not open
     let unknown = MapRef {
         name: "nowhere".into(),
