@@ -38,8 +38,8 @@ from google.protobuf.message import Message
 
 from . import errors
 from ._proto import paddock_pb2 as pb
-from .maps import find_map_dir, read_bundle, server_map
-from .transport import DEFAULT_TIMEOUT, IN_PROCESS, read_model
+from .maps import MapBundle
+from .transport import DEFAULT_TIMEOUT, IN_PROCESS, MapsAndModels
 
 ABI_VERSION = 1
 _ENV, _PUT_MAP, _PUT_BLOB, _SHIPPED = 1, 2, 3, 4
@@ -149,16 +149,19 @@ class Frame:
         return memoryview(self.bytes)
 
 
-class InProcess:
+class InProcess(MapsAndModels):
     """Env sessions inside this process, with the methods of
     :class:`paddock.transport.Connection` that envs use (``env``, ``map_ref``,
-    ``driver_name``, ``status``, ``close``); ``endpoint`` is :data:`IN_PROCESS`."""
+    ``driver_name``, ``status``, ``close``); ``endpoint`` is :data:`IN_PROCESS`. Maps
+    given as paths go to a temporary map cache that :meth:`close` removes; ONNX models
+    are registered with this process."""
 
     endpoint = IN_PROCESS
 
     def __init__(self, timeout: float = DEFAULT_TIMEOUT) -> None:
         if not timeout > 0:
             raise ValueError(f"timeout {timeout!r} must be > 0 seconds")
+        super().__init__()
         self.timeout = float(timeout)
         _check_not_forked()
         self._lib = _library()
@@ -166,8 +169,6 @@ class InProcess:
         self._handle = self._lib.paddock_embed_new()
         if not self._handle:
             raise errors.ServerStartError("the in-process simulator could not start (a bug)")
-        self._maps: dict[str, pb.MapRef] = {}
-        self._models: dict[str, str] = {}
 
     def _call(self, kind: int, payload: bytes = b"", session: int = 0,
               op: int = 0) -> list[Frame]:
@@ -206,32 +207,13 @@ class InProcess:
             raise errors.from_reply(e.code, e.field, e.message)
         return header, frames[1:]
 
-    def map_ref(self, map: str) -> pb.MapRef:
-        """The reference of map ``map``: a map on this machine (a directory, a map YAML, a
-        folder in ``PADDOCK_MAPS``) is checked and copied into a temporary map cache that
-        :meth:`close` removes; otherwise the name of a map the library ships."""
-        ref = self._maps.get(map)
-        if ref is None:
-            d = find_map_dir(map)
-            if d is not None:
-                b = read_bundle(map, d)
-                ref = pb.MapRef.FromString(self._call(_PUT_MAP, b.to_proto().SerializeToString())[0].bytes)
-            else:
-                ref = server_map(map, list(self.status().maps))
-            self._maps[map] = ref
-        return ref
+    def _put_map(self, bundle: MapBundle) -> pb.MapRef:
+        """Checks a map bundle and keeps it in the library's temporary map cache."""
+        return pb.MapRef.FromString(self._call(_PUT_MAP, bundle.to_proto().SerializeToString())[0].bytes)
 
-    def driver_name(self, driver: str | os.PathLike[str]) -> str:
-        """A driver's name as given, or for an ONNX model file (``*.onnx``) the
-        ``onnx:<sha256>`` name it is registered under in this process."""
-        text = os.fspath(driver)
-        if not text.lower().endswith(".onnx"):
-            return text
-        name = self._models.get(text)
-        if name is None:
-            name = self._call(_PUT_BLOB, read_model(text))[0].bytes.decode()
-            self._models[text] = name
-        return name
+    def _put_model(self, path: str, data: bytes) -> str:
+        """Registers a model with this process; its ``onnx:<sha256>`` name."""
+        return self._call(_PUT_BLOB, data)[0].bytes.decode()
 
     def status(self, timeout: float | None = None) -> pb.BrokerStatus:
         """What a broker's status says of its maps: the maps the library ships."""

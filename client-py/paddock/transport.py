@@ -24,7 +24,7 @@ from google.protobuf.message import DecodeError, Message
 from . import errors
 from . import resume as rs
 from ._proto import paddock_pb2 as pb
-from .maps import find_map_dir, read_bundle, server_map
+from .maps import MapBundle, find_map_dir, read_bundle, server_map
 
 #: The largest model file the server accepts (bytes), as ``paddock`` checks it.
 MAX_MODEL_BYTES = 64 << 20
@@ -186,7 +186,55 @@ def client_token() -> bytes:
     return token
 
 
-class Connection:
+class MapsAndModels:
+    """The maps and ONNX models a transport hands to env sessions, each handed over once:
+    :meth:`map_ref` and :meth:`driver_name`, for a server (:class:`Connection`) and for
+    the simulator in this process (:class:`paddock.inprocess.InProcess`), which differ
+    only in how a map bundle or a model's bytes get there (``_put_map``, ``_put_model``)
+    and in the maps they ship (``status``)."""
+
+    def __init__(self) -> None:
+        self._maps: dict[str, pb.MapRef] = {}
+        self._models: dict[str, str] = {}
+
+    def _put_map(self, bundle: MapBundle) -> pb.MapRef:
+        raise NotImplementedError
+
+    def _put_model(self, path: str, data: bytes) -> str:
+        raise NotImplementedError
+
+    def status(self, timeout: float | None = None) -> pb.BrokerStatus:
+        raise NotImplementedError
+
+    def map_ref(self, map: str) -> pb.MapRef:
+        """The reference of map ``map``: a map on this machine (a directory, a map YAML,
+        a folder in ``PADDOCK_MAPS``) is handed over once; otherwise the name of a map
+        shipped with the simulator (from :meth:`status`)."""
+        ref = self._maps.get(map)
+        if ref is None:
+            d = find_map_dir(map)
+            if d is not None:
+                ref = self._put_map(read_bundle(map, d))
+            else:
+                ref = server_map(map, list(self.status().maps))
+            self._maps[map] = ref
+        return ref
+
+    def driver_name(self, driver: str | os.PathLike[str]) -> str:
+        """The driver name a scenario or env open carries: a driver's name as given, or
+        for an ONNX model file (``*.onnx``) ``onnx:<sha256>`` of its bytes, the model
+        handed over once."""
+        text = os.fspath(driver)
+        if not text.lower().endswith(".onnx"):
+            return text
+        name = self._models.get(text)
+        if name is None:
+            name = self._put_model(text, read_model(text))
+            self._models[text] = name
+        return name
+
+
+class Connection(MapsAndModels):
     """A DEALER socket connected to a broker's client endpoint (not thread-safe: one
     request at a time; a lock serialises callers)."""
 
@@ -205,8 +253,7 @@ class Connection:
         self._ctx = context or zmq.Context.instance()
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
-        self._maps: dict[str, pb.MapRef] = {}
-        self._models: dict[str, str] = {}
+        super().__init__()
         self._sock: zmq.Socket | None = None
         self._monitor: zmq.Socket | None = None
         self._fingerprint = ""
@@ -443,42 +490,21 @@ class Connection:
                                             payload=payload)
         return reply, frames
 
-    def map_ref(self, map: str) -> pb.MapRef:
-        """The reference of map ``map``: a map on this machine (a directory, a map YAML,
-        a folder in ``PADDOCK_MAPS``) is uploaded to the broker once per connection;
-        otherwise the name of a map the broker ships (from its status)."""
-        ref = self._maps.get(map)
-        if ref is None:
-            d = find_map_dir(map)
-            if d is not None:
-                b = read_bundle(map, d)
-                self.request("put_map", pb.PutMap(bundle=b.to_proto()), "map_stored")
-                ref = b.ref()
-            else:
-                ref = server_map(map, list(self.status().maps))
-            self._maps[map] = ref
-        return ref
+    def _put_map(self, bundle: MapBundle) -> pb.MapRef:
+        """Uploads a map bundle to the broker (once per connection, see :meth:`map_ref`)."""
+        self.request("put_map", pb.PutMap(bundle=bundle.to_proto()), "map_stored")
+        return bundle.ref()
 
-    def driver_name(self, driver: str | os.PathLike[str]) -> str:
-        """The driver name a scenario or env open carries: a driver's name as given, or
-        for an ONNX model file (``*.onnx``) ``onnx:<sha256>`` of its bytes, the model
-        stored in the broker once per connection (workers fetch it from there by that
-        hash, once each)."""
-        text = os.fspath(driver)
-        if not text.lower().endswith(".onnx"):
-            return text
-        name = self._models.get(text)
-        if name is None:
-            data = read_model(text)
-            digest = hashlib.sha256(data).hexdigest()
-            stored = self.request("put_blob", pb.PutBlob(data=data), "blob_stored")
-            if stored.hash != digest:
-                raise errors.ServerError(13, "put_blob.data",
-                                         f"the broker stored {text} under hash {stored.hash}, "
-                                         f"not its SHA-256 {digest}")
-            name = f"onnx:{digest}"
-            self._models[text] = name
-        return name
+    def _put_model(self, path: str, data: bytes) -> str:
+        """Stores a model's bytes in the broker (workers fetch it from there by its hash,
+        once each); its ``onnx:<sha256>`` name."""
+        digest = hashlib.sha256(data).hexdigest()
+        stored = self.request("put_blob", pb.PutBlob(data=data), "blob_stored")
+        if stored.hash != digest:
+            raise errors.ServerError(13, "put_blob.data",
+                                     f"the broker stored {path} under hash {stored.hash}, "
+                                     f"not its SHA-256 {digest}")
+        return f"onnx:{digest}"
 
     def status(self, timeout: float | None = None) -> pb.BrokerStatus:
         return self.request("status_request", pb.StatusRequest(), "broker_status", timeout)
