@@ -379,11 +379,11 @@ pub(super) unsafe fn cross_runs(
                 let t = _mm256_mul_pd(dl, _mm256_loadu_pd(inv.as_ptr().add(i)));
                 let y = _mm256_add_pd(g, _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))));
                 let b = _mm256_loadu_pd(best.as_ptr().add(i));
-                let hit = _mm256_and_pd(
-                    _mm256_and_pd(
-                        _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
-                        _mm256_cmp_pd::<_CMP_LT_OQ>(t, b),
-                    ),
+                // On the run and ahead; a hit is such a crossing nearer than `b`, but the
+                // minimum below needs no test of that, and the flags test it only in
+                // their rare branch.
+                let on = _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
                     _mm256_and_pd(
                         _mm256_cmp_pd::<_CMP_GE_OQ>(y, lo_out),
                         _mm256_cmp_pd::<_CMP_LE_OQ>(y, hi_out),
@@ -393,14 +393,16 @@ pub(super) unsafe fn cross_runs(
                     _mm256_cmp_pd::<_CMP_LT_OQ>(y, lo_in),
                     _mm256_cmp_pd::<_CMP_GT_OQ>(y, hi_in),
                 );
-                // min(b, hit ? t : inf) is hit ? t : b (a hit has t < b); as a blend the
+                // min(b, on ? t : inf) is b, or t where t < b (a hit); as a blend the
                 // compiler would make it a masked store, which is slow on AMD CPUs and
                 // stalls the next run's loads.
-                let tm = _mm256_blendv_pd(inf, t, hit);
+                let tm = _mm256_blendv_pd(inf, t, on);
                 _mm256_storeu_pd(best.as_mut_ptr().add(i), _mm256_min_pd(b, tm));
-                let set = _mm256_movemask_pd(_mm256_and_pd(hit, near));
+                let set = _mm256_movemask_pd(_mm256_and_pd(on, near));
                 if set != 0 {
-                    flagged = true;
+                    // A hit near an end of the run: flagged.
+                    let set = set & _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LT_OQ>(t, b));
+                    flagged |= set != 0;
                     for l in 0..LANES {
                         if set & (1 << l) != 0 {
                             flag[i + l] = 1.0;
