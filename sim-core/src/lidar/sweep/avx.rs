@@ -20,10 +20,9 @@ pub(super) struct Runs {
     from: Vec<i32>,
     to: Vec<i32>,
     dl: Vec<f64>,
-    lo_out: Vec<f64>,
-    hi_out: Vec<f64>,
-    lo_in: Vec<f64>,
-    hi_in: Vec<f64>,
+    mid: Vec<f64>,
+    half_out: Vec<f64>,
+    half_in: Vec<f64>,
 }
 
 impl Runs {
@@ -37,10 +36,9 @@ impl Runs {
             self.to.resize(len, 0);
             for v in [
                 &mut self.dl,
-                &mut self.lo_out,
-                &mut self.hi_out,
-                &mut self.lo_in,
-                &mut self.hi_in,
+                &mut self.mid,
+                &mut self.half_out,
+                &mut self.half_in,
             ] {
                 v.resize(len, 0.0);
             }
@@ -76,7 +74,7 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
         .min(los.len())
         .min(his.len())
         .min(runs.from.len())
-        .min(runs.hi_in.len());
+        .min(runs.half_in.len());
     assert!(m.next_multiple_of(LANES) <= len, "{m} runs of {len}");
     let set = _mm256_set1_pd;
     let sign = set(-0.0);
@@ -152,10 +150,13 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
             );
             _mm_storeu_si128(runs.to.as_mut_ptr().add(j).cast(), _mm256_cvttpd_epi32(to));
             _mm256_storeu_pd(at(&mut runs.dl), _mm256_and_pd(across, live));
-            _mm256_storeu_pd(at(&mut runs.lo_out), _mm256_sub_pd(lo, set(EPS)));
-            _mm256_storeu_pd(at(&mut runs.hi_out), _mm256_add_pd(hi, set(EPS)));
-            _mm256_storeu_pd(at(&mut runs.lo_in), _mm256_add_pd(lo, set(EPS)));
-            _mm256_storeu_pd(at(&mut runs.hi_in), _mm256_sub_pd(hi, set(EPS)));
+            let half = _mm256_mul_pd(_mm256_sub_pd(hi, lo), set(0.5));
+            _mm256_storeu_pd(
+                at(&mut runs.mid),
+                _mm256_mul_pd(_mm256_add_pd(lo, hi), set(0.5)),
+            );
+            _mm256_storeu_pd(at(&mut runs.half_out), _mm256_add_pd(half, set(EPS)));
+            _mm256_storeu_pd(at(&mut runs.half_in), _mm256_sub_pd(half, set(EPS)));
         }
         j += LANES;
     }
@@ -356,8 +357,9 @@ pub(super) unsafe fn cross_runs(
 ) -> bool {
     let n = inv.len().min(along.len()).min(best.len()).min(flag.len());
     let (from, to) = (&runs.from[..m], &runs.to[..m]);
-    let (dl, lo_out, hi_out) = (&runs.dl[..m], &runs.lo_out[..m], &runs.hi_out[..m]);
-    let (lo_in, hi_in) = (&runs.lo_in[..m], &runs.hi_in[..m]);
+    let (dl, mid) = (&runs.dl[..m], &runs.mid[..m]);
+    let (half_out, half_in) = (&runs.half_out[..m], &runs.half_in[..m]);
+    let sign = _mm256_set1_pd(-0.0);
     let zero = _mm256_setzero_pd();
     let mut flagged = false;
     let inf = _mm256_set1_pd(f64::INFINITY);
@@ -370,8 +372,8 @@ pub(super) unsafe fn cross_runs(
         let (start, end) = (from[j] as usize, to[j] as usize);
         assert!(end <= n, "beams {start}..{end} of {n}");
         let dl = _mm256_set1_pd(dl[j]);
-        let (lo_out, hi_out) = (_mm256_set1_pd(lo_out[j]), _mm256_set1_pd(hi_out[j]));
-        let (lo_in, hi_in) = (_mm256_set1_pd(lo_in[j]), _mm256_set1_pd(hi_in[j]));
+        let mid = _mm256_set1_pd(mid[j]);
+        let (half_out, half_in) = (_mm256_set1_pd(half_out[j]), _mm256_set1_pd(half_in[j]));
         let mut i = start;
         while i < end {
             // SAFETY: i + 4 <= end <= the length of every array.
@@ -382,17 +384,12 @@ pub(super) unsafe fn cross_runs(
                 // On the run and ahead; a hit is such a crossing nearer than `b`, but the
                 // minimum below needs no test of that, and the flags test it only in
                 // their rare branch.
+                let d = _mm256_andnot_pd(sign, _mm256_sub_pd(y, mid));
                 let on = _mm256_and_pd(
                     _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
-                    _mm256_and_pd(
-                        _mm256_cmp_pd::<_CMP_GE_OQ>(y, lo_out),
-                        _mm256_cmp_pd::<_CMP_LE_OQ>(y, hi_out),
-                    ),
+                    _mm256_cmp_pd::<_CMP_LE_OQ>(d, half_out),
                 );
-                let near = _mm256_or_pd(
-                    _mm256_cmp_pd::<_CMP_LT_OQ>(y, lo_in),
-                    _mm256_cmp_pd::<_CMP_GT_OQ>(y, hi_in),
-                );
+                let near = _mm256_cmp_pd::<_CMP_GT_OQ>(d, half_in);
                 // min(b, on ? t : inf) is b, or t where t < b (a hit); as a blend the
                 // compiler would make it a masked store, which is slow on AMD CPUs and
                 // stalls the next run's loads.
