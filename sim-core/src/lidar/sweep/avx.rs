@@ -20,7 +20,7 @@ pub(super) struct Runs {
     from: Vec<i32>,
     to: Vec<i32>,
     dl: Vec<f64>,
-    mid: Vec<f64>,
+    off: Vec<f64>,
     half_out: Vec<f64>,
     half_in: Vec<f64>,
 }
@@ -36,7 +36,7 @@ impl Runs {
             self.to.resize(len, 0);
             for v in [
                 &mut self.dl,
-                &mut self.mid,
+                &mut self.off,
                 &mut self.half_out,
                 &mut self.half_in,
             ] {
@@ -151,10 +151,8 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
             _mm_storeu_si128(runs.to.as_mut_ptr().add(j).cast(), _mm256_cvttpd_epi32(to));
             _mm256_storeu_pd(at(&mut runs.dl), _mm256_and_pd(across, live));
             let half = _mm256_mul_pd(_mm256_sub_pd(hi, lo), set(0.5));
-            _mm256_storeu_pd(
-                at(&mut runs.mid),
-                _mm256_mul_pd(_mm256_add_pd(lo, hi), set(0.5)),
-            );
+            let mid = _mm256_mul_pd(_mm256_add_pd(lo, hi), set(0.5));
+            _mm256_storeu_pd(at(&mut runs.off), _mm256_sub_pd(set(g_along), mid));
             _mm256_storeu_pd(at(&mut runs.half_out), _mm256_add_pd(half, set(EPS)));
             _mm256_storeu_pd(at(&mut runs.half_in), _mm256_sub_pd(half, set(EPS)));
         }
@@ -349,7 +347,6 @@ pub(super) unsafe fn atan2_ps(y: __m256, x: __m256) -> __m256 {
 pub(super) unsafe fn cross_runs(
     runs: &Runs,
     m: usize,
-    g_along: f64,
     inv: &[f64],
     along: &[f64],
     best: &mut [f64],
@@ -357,13 +354,12 @@ pub(super) unsafe fn cross_runs(
 ) -> bool {
     let n = inv.len().min(along.len()).min(best.len()).min(flag.len());
     let (from, to) = (&runs.from[..m], &runs.to[..m]);
-    let (dl, mid) = (&runs.dl[..m], &runs.mid[..m]);
+    let (dl, off) = (&runs.dl[..m], &runs.off[..m]);
     let (half_out, half_in) = (&runs.half_out[..m], &runs.half_in[..m]);
     let sign = _mm256_set1_pd(-0.0);
     let zero = _mm256_setzero_pd();
     let mut flagged = false;
     let inf = _mm256_set1_pd(f64::INFINITY);
-    let g = _mm256_set1_pd(g_along);
     let half = m.div_ceil(2);
     for k in 0..m {
         // Runs from the two halves in turn: neighbouring runs (along a line) share beams,
@@ -372,19 +368,23 @@ pub(super) unsafe fn cross_runs(
         let (start, end) = (from[j] as usize, to[j] as usize);
         assert!(end <= n, "beams {start}..{end} of {n}");
         let dl = _mm256_set1_pd(dl[j]);
-        let mid = _mm256_set1_pd(mid[j]);
+        let off = _mm256_set1_pd(off[j]);
         let (half_out, half_in) = (_mm256_set1_pd(half_out[j]), _mm256_set1_pd(half_in[j]));
         let mut i = start;
         while i < end {
             // SAFETY: i + 4 <= end <= the length of every array.
             unsafe {
                 let t = _mm256_mul_pd(dl, _mm256_loadu_pd(inv.as_ptr().add(i)));
-                let y = _mm256_add_pd(g, _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))));
+                // The crossing's place along the line from the run's middle.
+                let rel = _mm256_add_pd(
+                    _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))),
+                    off,
+                );
                 let b = _mm256_loadu_pd(best.as_ptr().add(i));
                 // On the run and ahead; a hit is such a crossing nearer than `b`, but the
                 // minimum below needs no test of that, and the flags test it only in
                 // their rare branch.
-                let d = _mm256_andnot_pd(sign, _mm256_sub_pd(y, mid));
+                let d = _mm256_andnot_pd(sign, rel);
                 let on = _mm256_and_pd(
                     _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
                     _mm256_cmp_pd::<_CMP_LE_OQ>(d, half_out),

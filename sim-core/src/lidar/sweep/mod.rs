@@ -572,15 +572,8 @@ impl Sweep {
                 // Every beam any run may lower (a group marked without need is only
                 // measured again).
                 mark_groups(&mut self.dirty, b0, b1);
-                self.flagged |= avx::cross_runs(
-                    &self.runs,
-                    m,
-                    g_along,
-                    inv,
-                    along,
-                    &mut self.best,
-                    &mut self.flag,
-                );
+                self.flagged |=
+                    avx::cross_runs(&self.runs, m, inv, along, &mut self.best, &mut self.flag);
             }
             return;
         }
@@ -745,16 +738,15 @@ fn with_margin(reach: f64) -> f64 {
 }
 
 /// One run as its crossings need it: the distance across to its line, the origin's
-/// coordinate along it, and its extent along it as its middle and its half length widened
-/// and narrowed by [`EPS`] (a crossing's distance from the middle then says both whether
-/// it lies on the run and whether near an end, in fewer operations than four bounds; it
+/// coordinate along it from the run's middle, and the run's half length widened and
+/// narrowed by [`EPS`]. A crossing's distance from the middle then says both whether it
+/// lies on the run and whether near an end, in fewer operations than four bounds; it
 /// differs from the bounds' answer only within rounding of `EPS` from an end, where either
-/// answer is safe: a crossing there is flagged if it counts, and a ray passing that near
+/// answer is safe (a crossing there is flagged if it counts, and a ray passing that near
 /// outside a run's end or inside it meets the cells the march says).
 struct Run {
     dl: f64,
-    g_along: f64,
-    mid: f64,
+    off: f64,
     half_out: f64,
     half_in: f64,
 }
@@ -768,8 +760,7 @@ impl Run {
         let half = (hi - lo) * 0.5;
         Run {
             dl: f64::from(line) - g_line,
-            g_along,
-            mid: (lo + hi) * 0.5,
+            off: g_along - (lo + hi) * 0.5,
             half_out: half + EPS,
             half_in: half - EPS,
         }
@@ -791,8 +782,8 @@ impl Run {
         let mut flagged = false;
         for i in from..to {
             let t = self.dl * inv[i];
-            let y = self.g_along + t * along[i];
-            let d = (y - self.mid).abs();
+            // The crossing's distance along the line from the run's middle.
+            let d = (t * along[i] + self.off).abs();
             let hit = (t > 0.0) & (t < best[i]) & (d <= self.half_out);
             let near = d > self.half_in;
             // As a minimum, not a select, for the same reason as in `avx::cross_runs`.
