@@ -128,13 +128,7 @@ impl Embedded {
             // it; registering gives its `onnx:<sha256>` name.
             PUT_BLOB => paddock_policy::onnx::register(payload, "put_blob.data")
                 .map(|name| vec![name.as_bytes().to_vec()])
-                .map_err(|e| {
-                    error(
-                        ErrorCode::InvalidArgument,
-                        "put_blob.data",
-                        format!("put_blob.data: {e}"),
-                    )
-                }),
+                .map_err(|e| error(ErrorCode::InvalidArgument, "put_blob.data", e.to_string())),
             SHIPPED => {
                 let status = BrokerStatus {
                     maps: paddock_wire::shipped_bundles()
