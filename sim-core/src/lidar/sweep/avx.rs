@@ -1,5 +1,5 @@
 //! The sweep's AVX kernels: the runs' beam ranges, four runs at a time, and their
-//! crossings, four beams at a time (the same operations lane by lane as the portable
+//! crossings, four beams at a time (the same arithmetic lane by lane as the portable
 //! code in `super`, so the same bits), and the culling's maxima. The directions that
 //! bound the runs' and the blocks' beam ranges are taken in single precision and the
 //! ranges widened by its error bound: a range only has to hold every beam that can cross
@@ -336,9 +336,10 @@ pub(super) unsafe fn atan2_ps(y: __m256, x: __m256) -> __m256 {
 
 /// `Sweep::cross`'s crossings with AVX: each of the first `m` runs of `runs` (see
 /// [`beams_of_runs`]) with its lanes of beams, four beams per instruction with the same
-/// operations lane by lane as [`super::Run::cross`], so the same bits. Returns whether any beam
-/// was flagged (rare: set lane by lane behind a branch, not by a load and a store per
-/// lane).
+/// arithmetic lane by lane as [`super::Run::cross`], so the same ranges and flags (its
+/// hit test, less the comparison with the current range, which the minimum does not
+/// need: asked only where a flag may be set). Returns whether any beam was flagged (rare:
+/// set lane by lane behind a branch, not by a load and a store per lane).
 ///
 /// # Safety
 /// The CPU must support AVX.
