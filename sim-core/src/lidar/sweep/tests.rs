@@ -11,6 +11,10 @@ fn atan2_ps_is_within_its_bound() {
     if !std::arch::is_x86_feature_detected!("avx") {
         return;
     }
+    // SAFETY (each call): the CPU has AVX (checked above).
+    let atan2 = |y: f32, x: f32| unsafe {
+        _mm256_cvtss_f32(avx::atan2_ps(_mm256_set1_ps(y), _mm256_set1_ps(x)))
+    };
     let mut worst = 0.0f64;
     let n = 200_000;
     for r in [1e-9, 1e-3, 1.0, 1e4, 3e7] {
@@ -34,15 +38,135 @@ fn atan2_ps_is_within_its_bound() {
             }
         }
     }
-    assert!(worst < 4.2e-5, "worst error {worst}");
+    assert!(worst < 1.2e-5, "worst error {worst}");
     assert!(worst < avx::ANGLE_ERR_PS);
-    // the negative x axis: +pi for y = +-0.0, as the double-precision atan2
-    // SAFETY: as above.
-    let on_axis = unsafe {
-        let a = avx::atan2_ps(_mm256_set1_ps(-0.0), _mm256_set1_ps(-2.0));
-        _mm256_cvtss_f32(a)
-    };
-    assert_eq!(on_axis, std::f32::consts::PI);
+    // the axes where they are, and the negative x axis: +pi for y = +-0.0, as the
+    // double-precision atan2
+    let (pi, half) = (std::f32::consts::PI, std::f32::consts::FRAC_PI_2);
+    for (y, x, want) in [
+        (0.0, 3.0, 0.0),
+        (-0.0, 3.0, 0.0),
+        (-0.0, -2.0, pi),
+        (0.0, -2.0, pi),
+        (5.0, 0.0, half),
+        (-5.0, 0.0, -half),
+    ] {
+        assert_eq!(atan2(y, x), want, "atan2({y}, {x})");
+    }
+    // each octant's side of the diagonals
+    for k in 0..8 {
+        let a = -PI + TAU * (k as f64 + 0.5) / 8.0;
+        for d in [-1e-3, 0.0, 1e-3] {
+            let (y, x) = (libm::sin(a + d) as f32, libm::cos(a + d) as f32);
+            let want = libm::atan2(f64::from(y), f64::from(x));
+            let got = f64::from(atan2(y, x));
+            assert!(
+                (got - want).abs() < 1.2e-5,
+                "atan2({y}, {x}) = {got}, not {want}"
+            );
+        }
+    }
+}
+
+/// The AVX form's beams of a side's runs hold every beam whose direction (by the double-
+/// precision atan2) lies between the directions of the run's ends, on fans narrow and
+/// nearly full, of few beams and of many, from origins near and far; a run's lanes are
+/// whole and at least two; the span returned holds those of the runs that have beams.
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn the_runs_beams_hold_every_beam_between_their_ends() {
+    if !std::arch::is_x86_feature_detected!("avx") {
+        return;
+    }
+    let mut rng = crate::rng::Rng::new(77);
+    let mut checked = 0;
+    for k in 0..3000 {
+        let (n, fov) = [(1080, 4.7), (64, 1.0), (721, 5.9), (4096, 6.2)][k % 4];
+        let inc = fov / (n - 1) as f64;
+        let heading = rng.uniform_range(-PI, PI);
+        let fan = Fan::new(libm::cos(heading), libm::sin(heading), fov, inc);
+        let (g_line, g_along) = (
+            rng.uniform_range(0.0, 3000.0),
+            rng.uniform_range(0.0, 3000.0),
+        );
+        let spread = [2.0, 30.0, 600.0][k % 3];
+        let m = 1 + rng.below(11) as usize;
+        let mut line = vec![0f32; m + 3];
+        let (mut los, mut his) = (vec![0f32; m + 3], vec![0f32; m + 3]);
+        for j in 0..m + 3 {
+            let l = (g_line + rng.uniform_range(-spread, spread)).round();
+            line[j] = l as f32;
+            let lo = (g_along + rng.uniform_range(-spread, spread)).floor();
+            los[j] = lo as f32;
+            his[j] = (lo + 1.0 + rng.below(40) as f64) as f32;
+        }
+        let top = (n - 1) as f64;
+        for vertical in [false, true] {
+            let mut runs = avx::Runs::default();
+            runs.reserve(m);
+            // SAFETY: the CPU has AVX (checked above); the slices hold m + 3 runs.
+            let span = unsafe {
+                if vertical {
+                    avx::beams_of_runs::<true>(
+                        &line, &los, &his, m, g_line, g_along, &fan, 1e9, top, &mut runs,
+                    )
+                } else {
+                    avx::beams_of_runs::<false>(
+                        &line, &los, &his, m, g_line, g_along, &fan, 1e9, top, &mut runs,
+                    )
+                }
+            };
+            let (mut least, mut most) = (usize::MAX, 0);
+            for j in 0..m {
+                let (from, to) = runs.lanes(j);
+                assert!(from % LANES == 0 && to % LANES == 0 && to >= from + 2 * LANES);
+                let across = f64::from(line[j]) - g_line;
+                let end = |along: f32| {
+                    let along = f64::from(along) - g_along;
+                    let (x, y) = if vertical {
+                        (across, along)
+                    } else {
+                        (along, across)
+                    };
+                    let a = libm::atan2(y * fan.cos - x * fan.sin, x * fan.cos + y * fan.sin);
+                    (a + fan.half_fov) * fan.inv_inc
+                };
+                let (i0, i1) = (end(los[j]), end(his[j]));
+                let (a, b) = (i0.min(i1), i0.max(i1));
+                if (b - a - PI * fan.inv_inc).abs() < 1.0 {
+                    // seen across nearly half a turn: either answer is safe
+                    continue;
+                }
+                // the beams between the ends (by more than the double atan2's rounding);
+                // a run across the direction behind takes every beam
+                let want = if b - a > PI * fan.inv_inc {
+                    0..n
+                } else {
+                    let first = (a + 1e-9).ceil().max(0.0) as usize;
+                    let last = (b - 1e-9).floor().min(top);
+                    first..(last + 1.0).max(0.0) as usize
+                };
+                if want.is_empty() {
+                    continue;
+                }
+                checked += 1;
+                assert!(
+                    from <= want.start && want.end <= to,
+                    "run {j} (vertical {vertical}): beams {want:?} not in {from}..{to}"
+                );
+                least = least.min(want.start);
+                most = most.max(want.end - 1);
+            }
+            if least <= most {
+                let (l, h) = span.expect("a span");
+                assert!(
+                    l <= least && most <= h,
+                    "span {l}..={h} misses {least}..={most}"
+                );
+            }
+        }
+    }
+    assert!(checked > 5000, "only {checked} runs had beams");
 }
 
 #[test]
