@@ -38,7 +38,7 @@ fn atan2_ps_is_within_its_bound() {
             }
         }
     }
-    assert!(worst < 1.2e-5, "worst error {worst}");
+    assert!(worst < 2.7e-4, "worst error {worst}");
     assert!(worst < avx::ANGLE_ERR_PS);
     // the axes where they are, and the negative x axis: +pi for y = +-0.0, as the
     // double-precision atan2
@@ -61,7 +61,7 @@ fn atan2_ps_is_within_its_bound() {
             let want = libm::atan2(f64::from(y), f64::from(x));
             let got = f64::from(atan2(y, x));
             assert!(
-                (got - want).abs() < 1.2e-5,
+                (got - want).abs() < 2.7e-4,
                 "atan2({y}, {x}) = {got}, not {want}"
             );
         }
