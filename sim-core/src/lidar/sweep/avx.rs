@@ -138,17 +138,17 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
                 _mm256_mul_pd(_mm256_andnot_pd(sign, across), set(1.0 - 1e-9)),
                 set(EPS),
             );
-            let near = _mm256_castpd_ps(_mm256_cmp_pd::<_CMP_LE_OQ>(dist, cull));
+            let within = _mm256_castpd_ps(_mm256_cmp_pd::<_CMP_LE_OQ>(dist, cull));
             // the four 64-bit masks as 32-bit ones (their low halves)
-            let near = _mm_castps_si128(_mm_shuffle_ps::<0b10_00_10_00>(
-                _mm256_castps256_ps128(near),
-                _mm256_extractf128_ps::<1>(near),
+            let within = _mm_castps_si128(_mm_shuffle_ps::<0b10_00_10_00>(
+                _mm256_castps256_ps128(within),
+                _mm256_extractf128_ps::<1>(within),
             ));
             let real = _mm_cmplt_epi32(
                 _mm_add_epi32(_mm_set1_epi32(j as i32), lane),
                 _mm_set1_epi32(m as i32),
             );
-            let live = _mm_andnot_si128(_mm_cmpgt_epi32(a, b), _mm_and_si128(near, real));
+            let live = _mm_andnot_si128(_mm_cmpgt_epi32(a, b), _mm_and_si128(within, real));
             least = _mm_min_epi32(least, _mm_blendv_epi8(_mm_set1_epi32(i32::MAX), a, live));
             most = _mm_max_epi32(most, _mm_blendv_epi8(_mm_set1_epi32(-1), b, live));
             // Whole lanes: from the lane of the first beam to past the lane of the last,
