@@ -65,6 +65,8 @@ OBS_KEYS = ("scans", "poses_x", "poses_y", "poses_theta", "linear_vels_x", "line
 _COLLISION = {"terminate": pb.COLLISION_TERMINATE, "stop": pb.COLLISION_STOP,
               "ignore": pb.COLLISION_IGNORE}
 DEFAULT_REWARD = {"progress": 1.0, "collision": -10.0, "lap": 0.0, "time": 0.0}
+# the wire's little-endian element types, made once
+_F4, _F8, _U4, _U1 = np.dtype("<f4"), np.dtype("<f8"), np.dtype("<u4"), np.dtype("u1")
 
 
 @dataclass
@@ -171,12 +173,14 @@ def contract_space(keys: Sequence[str], num_beams: int) -> spaces.Dict:
         for k in keys})
 
 
-def _frombuffer(data: bytes | memoryview, dtype: str, shape: tuple[int, ...], field: str) -> np.ndarray:
-    want = math.prod(shape) * np.dtype(dtype).itemsize
+def _frombuffer(data: bytes | memoryview, dtype: np.dtype, shape: tuple[int, ...],
+                field: str) -> np.ndarray:
+    """A view of ``data`` (exactly ``shape`` of ``dtype``), else ``BadMessage``."""
+    want = math.prod(shape) * dtype.itemsize
     if len(data) != want:
         raise errors.BadMessage(1, f"env_observation.{field}",
                                 f"{field} has {len(data)} bytes, expected {want} for shape {shape}")
-    return np.frombuffer(data, dtype=dtype).reshape(shape)
+    return np.ndarray(shape, dtype, data)
 
 
 class EnvSession:
@@ -255,17 +259,17 @@ class EnvSession:
         o = wire.observation(frames)
         n, a, b, lrn = self.num_envs, self.num_agents, self.num_beams, self.num_learners
         return Frame(
-            scans=_frombuffer(o.scans, "<f4", (n, lrn, b), "scans"),
-            states=_frombuffer(o.states, "<f8", (n, a, STATE_SIZE), "states"),
-            learner_rewards=_frombuffer(o.rewards, "<f8", (n, lrn), "rewards"),
-            learner_terminated=_frombuffer(o.terminated, "u1", (n, lrn), "terminated").astype(bool),
-            truncated=_frombuffer(o.truncated, "u1", (n,), "truncated").astype(bool),
-            learner_progress=_frombuffer(o.progress, "<f8", (n, lrn), "progress"),
-            learner_laps=_frombuffer(o.laps, "<u4", (n, lrn), "laps"),
-            time=_frombuffer(o.time, "<f8", (n,), "time"),
-            collisions=_frombuffer(o.agent_collisions, "u1", (n, a), "agent_collisions").astype(np.float64),
-            lap_counts=_frombuffer(o.agent_lap_counts, "<u4", (n, a), "agent_lap_counts").astype(np.int32),
-            lap_times=_frombuffer(o.agent_lap_times, "<f8", (n, a), "agent_lap_times"),
+            scans=_frombuffer(o.scans, _F4, (n, lrn, b), "scans"),
+            states=_frombuffer(o.states, _F8, (n, a, STATE_SIZE), "states"),
+            learner_rewards=_frombuffer(o.rewards, _F8, (n, lrn), "rewards"),
+            learner_terminated=_frombuffer(o.terminated, _U1, (n, lrn), "terminated").astype(bool),
+            truncated=_frombuffer(o.truncated, _U1, (n,), "truncated").astype(bool),
+            learner_progress=_frombuffer(o.progress, _F8, (n, lrn), "progress"),
+            learner_laps=_frombuffer(o.laps, _U4, (n, lrn), "laps"),
+            time=_frombuffer(o.time, _F8, (n,), "time"),
+            collisions=_frombuffer(o.agent_collisions, _U1, (n, a), "agent_collisions").astype(np.float64),
+            lap_counts=_frombuffer(o.agent_lap_counts, _U4, (n, a), "agent_lap_counts").astype(np.int32),
+            lap_times=_frombuffer(o.agent_lap_times, _F8, (n, a), "agent_lap_times"),
         )
 
     def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,

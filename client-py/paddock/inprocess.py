@@ -11,8 +11,12 @@ Requests and replies are the wire's own protobuf messages and frames, handled by
 worker's own code, so an in-process session checks its arguments, refuses bad ones and
 produces observations bit for bit as a server session with the same seeds does. What it
 saves is the way there: no broker hop, no socket threads, no other processes taking turns
-on the CPU; a step costs the simulation and one copy of its frames. The library is called
-with the GIL released (``ctypes``), so the learner's other threads run during a step.
+on the CPU, no fingerprint of every reply (nothing rebuilds an in-process session
+elsewhere); the scans of a step are written by the simulator straight into the array the
+learner gets (a new, read-only array per step, as from a server), and only the small
+frames are copied. The library is called with the GIL released (``ctypes``), so the
+learner's other threads run during a step. (Scans under 64 KiB, a few envs' worth, are
+copied out instead: at that size the copy costs less.)
 A bug in the simulator that would end a worker's session (a panic) ends it here too, as
 an error; the process keeps running.
 
@@ -34,6 +38,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from google.protobuf.message import Message
 
 from . import errors
@@ -41,8 +46,12 @@ from ._proto import paddock_pb2 as pb
 from .maps import MapBundle
 from .transport import DEFAULT_TIMEOUT, IN_PROCESS, MapsAndModels
 
-ABI_VERSION = 1
+ABI_VERSION = 2
 _ENV, _PUT_MAP, _PUT_BLOB, _SHIPPED = 1, 2, 3, 4
+# Scans of at least this many bytes are written into an array handed to the library;
+# fewer are copied out of its frame, which costs less than making and handing an array
+# (about a microsecond) at that size.
+_IN_PLACE_MIN = 64 << 10
 
 
 def _library_name() -> str:
@@ -127,7 +136,8 @@ def _library() -> ctypes.CDLL:
             lib.paddock_embed_free.argtypes = [ctypes.c_void_p]
             lib.paddock_embed_call.restype = ctypes.c_int64
             lib.paddock_embed_call.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64,
-                                               ctypes.c_int32, ctypes.c_char_p, ctypes.c_size_t]
+                                               ctypes.c_int32, ctypes.c_char_p, ctypes.c_size_t,
+                                               ctypes.c_void_p, ctypes.c_size_t]
             lib.paddock_embed_frame.restype = ctypes.c_size_t
             lib.paddock_embed_frame.argtypes = [ctypes.c_void_p, ctypes.c_size_t,
                                                 ctypes.POINTER(ctypes.c_void_p)]
@@ -136,12 +146,13 @@ def _library() -> ctypes.CDLL:
 
 
 class Frame:
-    """One reply frame: its bytes (``.bytes``, as a ``zmq.Frame``), read in place by
-    numpy through ``.buffer``."""
+    """One reply frame: its bytes (``.bytes``, as a ``zmq.Frame``; for scans the
+    simulator wrote in place, the read-only uint8 array that holds them), read in place
+    by numpy through ``.buffer``."""
 
     __slots__ = ("bytes",)
 
-    def __init__(self, data: bytes) -> None:
+    def __init__(self, data: bytes | np.ndarray) -> None:
         self.bytes = data
 
     @property
@@ -166,12 +177,14 @@ class InProcess(MapsAndModels):
         _check_not_forked()
         self._lib = _library()
         self._lock = threading.Lock()
+        # session id -> the bytes of its step's scans (num_envs x learners x beams x f32)
+        self._scan_bytes: dict[int, int] = {}
         self._handle = self._lib.paddock_embed_new()
         if not self._handle:
             raise errors.ServerStartError("the in-process simulator could not start (a bug)")
 
     def _call(self, kind: int, payload: bytes = b"", session: int = 0,
-              op: int = 0) -> list[Frame]:
+              op: int = 0, scans: np.ndarray | None = None) -> list[Frame]:
         global _USED_BY
         _check_not_forked()
         if _USED_BY is None:
@@ -179,7 +192,11 @@ class InProcess(MapsAndModels):
         with self._lock:
             if not self._handle:
                 raise errors.PaddockError("the in-process simulator is closed")
-            n = self._lib.paddock_embed_call(self._handle, kind, session, op, payload, len(payload))
+            # the array's address (cheaper than `scans.ctypes.data`)
+            into, size = (None, 0) if scans is None else (
+                ctypes.addressof(ctypes.c_char.from_buffer(scans)), scans.nbytes)
+            n = self._lib.paddock_embed_call(self._handle, kind, session, op, payload, len(payload),
+                                             into, size)
             if n < -1:
                 raise errors.ServerStartError(f"the in-process simulator answered {n}")
             frames = []
@@ -200,11 +217,22 @@ class InProcess(MapsAndModels):
         refusal is raised. ``timeout`` is accepted for the same signature (the call returns
         when the step is done)."""
         payload = b"" if msg is None else msg.SerializeToString()
-        frames = self._call(_ENV, payload, session_id, op)
+        # a step's or reset's scans go straight into a new array of theirs
+        size = self._scan_bytes.get(session_id, 0) if op in (pb.ENV_STEP, pb.ENV_RESET) else 0
+        scans = np.empty(size, dtype=np.uint8) if size >= _IN_PLACE_MIN else None
+        frames = self._call(_ENV, payload, session_id, op, scans)
         header = pb.EnvReply.FromString(frames[0].bytes)
         if header.HasField("error"):
             e = header.error
             raise errors.from_reply(e.code, e.field, e.message)
+        if op == pb.ENV_OPEN and len(frames) == 2:
+            o = pb.EnvOpened.FromString(frames[1].bytes)
+            self._scan_bytes[header.session_id] = o.num_envs * o.num_learners * o.num_beams * 4
+        elif op == pb.ENV_CLOSE:
+            self._scan_bytes.pop(session_id, None)
+        elif scans is not None and len(frames) == 3 and not frames[2].bytes:
+            scans.flags.writeable = False
+            frames[2] = Frame(scans)
         return header, frames[1:]
 
     def _put_map(self, bundle: MapBundle) -> pb.MapRef:

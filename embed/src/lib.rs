@@ -14,7 +14,11 @@
 //! A handle ([`Embedded`]) serves these requests (`kind` of [`paddock_embed_call`]):
 //! - [`ENV`]: an env request (`EnvRequest.op` and its payload) on session `session`; 0
 //!   opens one (the handle gives the ids, as the broker does). Frames: the encoded
-//!   `EnvReply`, then its payload frames.
+//!   `EnvReply`, then its payload frames. A step or reset given a buffer of exactly its
+//!   scans' size (`scans`, `scans_len`) writes the scans there and answers an empty
+//!   scans frame: the learner's array is where the simulator writes them, with no frame
+//!   to zero and no copy. Nothing here rebuilds a session elsewhere, so replies carry no
+//!   fingerprint (`EnvReply.fingerprint` is 0).
 //! - [`PUT_MAP`]: a `MapBundle`, checked and kept in the handle's map cache (a temporary
 //!   directory made on the first map put and removed with the handle; a handle that only
 //!   opens shipped maps writes nothing). Frames: the encoded `MapRef`.
@@ -37,7 +41,7 @@ use paddock_worker::sessions::Sessions;
 use prost::Message;
 
 /// The version of the C ABI below; the Python side refuses a library of another.
-pub const ABI_VERSION: u32 = 1;
+pub const ABI_VERSION: u32 = 2;
 
 /// Request kinds of [`paddock_embed_call`].
 pub const ENV: u32 = 1;
@@ -74,6 +78,7 @@ impl Embedded {
     pub fn new() -> Self {
         let mut sessions = Sessions::new();
         sessions.set_circuits(Circuits::new());
+        sessions.set_fingerprints(false);
         Self {
             sessions,
             cache: None,
@@ -103,16 +108,18 @@ impl Embedded {
         Ok(&self.cache.as_ref().expect("made above").0)
     }
 
-    /// The reply frames to request `kind` (see the module docs), or the error.
+    /// The reply frames to request `kind` (see the module docs), or the error; the
+    /// scans of an env step or reset go into `scans` when it has their size.
     pub fn call(
         &mut self,
         kind: u32,
         session: u64,
         op: i32,
         payload: &[u8],
+        scans: Option<&mut [u8]>,
     ) -> Result<Vec<Vec<u8>>, Error> {
         match kind {
-            ENV => Ok(self.env(session, op, payload)),
+            ENV => Ok(self.env(session, op, payload, scans)),
             PUT_MAP => {
                 let bundle = MapBundle::decode(payload).map_err(|e| {
                     error(
@@ -148,13 +155,19 @@ impl Embedded {
     }
 
     /// An env request's reply: its header, then its payload frames.
-    fn env(&mut self, session: u64, op: i32, payload: &[u8]) -> Vec<Vec<u8>> {
+    fn env(
+        &mut self,
+        session: u64,
+        op: i32,
+        payload: &[u8],
+        scans: Option<&mut [u8]>,
+    ) -> Vec<Vec<u8>> {
         let mut id = session;
         if session == 0 && op == EnvOp::EnvOpen as i32 {
             id = self.next_session;
             self.next_session += 1;
         }
-        let reply = self.sessions.handle(id, op, payload);
+        let reply = self.sessions.handle_into(id, op, payload, scans);
         let mut frames = Vec::with_capacity(1 + reply.frames.len());
         frames.push(reply.header.encode_to_vec());
         frames.extend(reply.frames);
@@ -164,17 +177,25 @@ impl Embedded {
     /// [`Embedded::call`] with a panic turned into an `INTERNAL` error; the reply (or the
     /// encoded error) is kept as the handle's frames. Returns the number of frames, or
     /// -1 for an error.
-    pub fn serve(&mut self, kind: u32, session: u64, op: i32, payload: &[u8]) -> i64 {
-        let result =
-            std::panic::catch_unwind(AssertUnwindSafe(|| self.call(kind, session, op, payload)))
-                .unwrap_or_else(|panic| {
-                    let what = paddock_worker::panic_message(panic.as_ref());
-                    Err(error(
-                        ErrorCode::Internal,
-                        "",
-                        format!("the in-process simulator failed: {what}"),
-                    ))
-                });
+    pub fn serve(
+        &mut self,
+        kind: u32,
+        session: u64,
+        op: i32,
+        payload: &[u8],
+        scans: Option<&mut [u8]>,
+    ) -> i64 {
+        let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            self.call(kind, session, op, payload, scans)
+        }))
+        .unwrap_or_else(|panic| {
+            let what = paddock_worker::panic_message(panic.as_ref());
+            Err(error(
+                ErrorCode::Internal,
+                "",
+                format!("the in-process simulator failed: {what}"),
+            ))
+        });
         match result {
             Ok(frames) => {
                 self.out = frames;
@@ -224,10 +245,15 @@ pub unsafe extern "C" fn paddock_embed_free(h: *mut Embedded) {
 /// Serves request `kind` (see the module docs) with `len` bytes of payload at
 /// `payload`: the number of reply frames, or -1 and one frame holding the encoded
 /// `Error`; -2 for a null handle. The frames stay valid until the handle's next call.
+/// An env step or reset whose scans take exactly `scans_len` bytes writes them at
+/// `scans` and answers an empty scans frame; with another length (or null) they come
+/// as a frame.
 ///
 /// # Safety
 /// `h` must be a live handle used by one thread at a time; `payload` must point to `len`
-/// readable bytes (it may be null when `len` is 0).
+/// readable bytes (it may be null when `len` is 0); `scans` to `scans_len` writable
+/// bytes that nothing else reads or writes during the call (null when `scans_len` is
+/// 0).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn paddock_embed_call(
     h: *mut Embedded,
@@ -236,6 +262,8 @@ pub unsafe extern "C" fn paddock_embed_call(
     op: i32,
     payload: *const u8,
     len: usize,
+    scans: *mut u8,
+    scans_len: usize,
 ) -> i64 {
     // SAFETY: the caller passes a live handle, used by this thread alone.
     let Some(h) = (unsafe { h.as_mut() }) else {
@@ -247,7 +275,14 @@ pub unsafe extern "C" fn paddock_embed_call(
         // SAFETY: the caller guarantees `len` readable bytes at `payload`.
         unsafe { std::slice::from_raw_parts(payload, len) }
     };
-    h.serve(kind, session, op, payload)
+    let scans = if scans_len == 0 || scans.is_null() {
+        None
+    } else {
+        // SAFETY: the caller guarantees `scans_len` writable bytes at `scans`, not
+        // aliased during the call.
+        Some(unsafe { std::slice::from_raw_parts_mut(scans, scans_len) })
+    };
+    h.serve(kind, session, op, payload, scans)
 }
 
 /// Frame `i` of the last reply: its length, its address written to `data` (null and 0

@@ -4,11 +4,34 @@ use paddock_proto::{
 
 use super::*;
 
-/// Calls through the C ABI, as the Python package does: the status and the frames.
+/// Calls through the C ABI with no buffer for the scans: the status and the frames.
 fn call(h: *mut Embedded, kind: u32, session: u64, op: i32, payload: &[u8]) -> (i64, Vec<Vec<u8>>) {
-    // SAFETY: a live handle of this test; `payload` is a valid slice.
-    let status =
-        unsafe { paddock_embed_call(h, kind, session, op, payload.as_ptr(), payload.len()) };
+    call_into(h, kind, session, op, payload, &mut [])
+}
+
+/// Calls through the C ABI, as the Python package does, offering `scans` for the scans
+/// of a step or reset: the status and the frames.
+fn call_into(
+    h: *mut Embedded,
+    kind: u32,
+    session: u64,
+    op: i32,
+    payload: &[u8],
+    scans: &mut [u8],
+) -> (i64, Vec<Vec<u8>>) {
+    // SAFETY: a live handle of this test; `payload` and `scans` are valid slices.
+    let status = unsafe {
+        paddock_embed_call(
+            h,
+            kind,
+            session,
+            op,
+            payload.as_ptr(),
+            payload.len(),
+            scans.as_mut_ptr(),
+            scans.len(),
+        )
+    };
     let mut frames = Vec::new();
     for i in 0.. {
         let mut data = std::ptr::null();
@@ -93,12 +116,49 @@ fn sessions_in_process_reply_as_a_worker_does() {
         let (status, frames) = call(h, ENV, session, op as i32, payload);
         assert_eq!(status, 3, "header, observation, scans");
         let want = worker.handle(session, op as i32, payload);
-        assert_eq!(EnvReply::decode(frames[0].as_slice()).unwrap(), want.header); // ok: test
+        let header = EnvReply::decode(frames[0].as_slice()).unwrap(); // ok: test
+        assert_ne!(want.header.fingerprint, 0);
+        assert_eq!(
+            header.fingerprint, 0,
+            "nothing rebuilds an in-process session"
+        );
+        assert_eq!(
+            EnvReply {
+                fingerprint: want.header.fingerprint,
+                ..header
+            },
+            want.header
+        );
         assert_eq!(frames[1..], want.frames[..]);
         let obs = EnvObservation::decode(frames[1].as_slice()).unwrap(); // ok: test
         assert_eq!(obs.num_envs, 3);
         assert_eq!(frames[2].len(), 3 * 1080 * 4, "the scans, f32");
     }
+
+    // the scans written into the caller's buffer: the same bits, an empty scans frame
+    let mut scans = vec![0xa5u8; 3 * 1080 * 4];
+    for (op, payload) in [
+        (EnvOp::EnvStep, &step),
+        (EnvOp::EnvReset, &reset),
+        (EnvOp::EnvStep, &step),
+    ] {
+        let (status, frames) = call_into(h, ENV, session, op as i32, payload, &mut scans);
+        assert_eq!(status, 3);
+        let want = worker.handle(session, op as i32, payload);
+        assert_eq!(frames[1], want.frames[0], "the same observation");
+        assert!(frames[2].is_empty(), "the scans are in the buffer");
+        assert!(
+            scans == want.frames[1],
+            "the buffer holds the worker's scans"
+        );
+    }
+    // a buffer of another size is left alone: the scans come as a frame
+    let mut short = vec![0xa5u8; 3 * 1080 * 4 - 4];
+    let (status, frames) = call_into(h, ENV, session, EnvOp::EnvStep as i32, &step, &mut short);
+    assert_eq!(status, 3);
+    let want = worker.handle(session, EnvOp::EnvStep as i32, &step);
+    assert_eq!(frames[1..], want.frames[..]);
+    assert!(short.iter().all(|&b| b == 0xa5), "untouched");
 
     // a refusal names the field, and the session keeps serving
     let (status, frames) = call(h, ENV, session, EnvOp::EnvStep as i32, b"\x0a\x03abc");
@@ -171,7 +231,18 @@ fn bad_requests_are_refused_with_the_field_named() {
     assert!(data.is_null());
     // SAFETY: a null handle is answered -2; nothing is read.
     assert_eq!(
-        unsafe { paddock_embed_call(std::ptr::null_mut(), ENV, 0, 0, std::ptr::null(), 0) },
+        unsafe {
+            paddock_embed_call(
+                std::ptr::null_mut(),
+                ENV,
+                0,
+                0,
+                std::ptr::null(),
+                0,
+                std::ptr::null_mut(),
+                0,
+            )
+        },
         -2
     );
     // SAFETY: the handle from `paddock_embed_new`, freed once; null is ignored.
@@ -186,7 +257,9 @@ fn a_map_put_by_bundle_opens_by_hash_and_goes_with_the_handle() {
     let mut h = Embedded::new();
     assert!(h.cache.is_none(), "nothing is written before a map is put");
     let bundle = paddock_wire::local_map(&Circuits::new(), "harbour").unwrap(); // ok: test
-    let frames = h.call(PUT_MAP, 0, 0, &bundle.encode_to_vec()).unwrap(); // ok: test
+    let frames = h
+        .call(PUT_MAP, 0, 0, &bundle.encode_to_vec(), None)
+        .unwrap(); // ok: test
     let map = MapRef::decode(frames[0].as_slice()).unwrap(); // ok: test
     assert_eq!(map.hash, bundle.hash);
     let (cache, _) = h.cache.as_ref().expect("made by the put");
@@ -198,6 +271,7 @@ fn a_map_put_by_bundle_opens_by_hash_and_goes_with_the_handle() {
             0,
             EnvOp::EnvOpen as i32,
             &open_msg(map).encode_to_vec(),
+            None,
         )
         .unwrap(); // ok: test
     let header = EnvReply::decode(frames[0].as_slice()).unwrap(); // ok: test

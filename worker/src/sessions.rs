@@ -60,6 +60,8 @@ pub struct Sessions {
     renderers: Renderers,
     /// Replaces the default vehicle of every car (see `WorkerConfig::vehicle`).
     vehicle: Option<VehicleParams>,
+    /// Replies carry no fingerprint (0): nobody rebuilds these sessions elsewhere.
+    unfingerprinted: bool,
 }
 
 /// Where the map of an open request is: a folder of the map cache, or a local map
@@ -111,6 +113,14 @@ impl Sessions {
         self.vehicle = (vehicle != VehicleParams::default()).then_some(vehicle);
     }
 
+    /// Whether replies carry the fingerprint of their payload frames (the default). A
+    /// host whose sessions are never rebuilt on another worker (the in-process library,
+    /// which has no broker) turns it off and saves a pass over every reply's scans; its
+    /// replies' `fingerprint` is then 0.
+    pub fn set_fingerprints(&mut self, on: bool) {
+        self.unfingerprinted = !on;
+    }
+
     /// The env of session `id`, when it is open here.
     pub fn env(&self, id: u64) -> Option<&VecEnv> {
         self.open.get(&id)
@@ -123,31 +133,45 @@ impl Sessions {
 
     /// The reply to the request `op` on session `session_id` with payload `payload`.
     pub fn handle(&mut self, session_id: u64, op: i32, payload: &[u8]) -> Reply {
+        self.handle_into(session_id, op, payload, None)
+    }
+
+    /// [`Sessions::handle`], with the scans of a step or reset written into `scans` when
+    /// it is given and has exactly their size (`VecEnv::packed_scans_len`): the reply's
+    /// scans frame is then empty and the caller's buffer holds them, so they are written
+    /// once, where the caller reads them. Otherwise the scans come in a frame of their
+    /// own, as from `handle`. The fingerprint covers the frames as returned.
+    pub fn handle_into(
+        &mut self,
+        session_id: u64,
+        op: i32,
+        payload: &[u8],
+        scans: Option<&mut [u8]>,
+    ) -> Reply {
         let mut restart = false;
-        let result = match EnvOp::try_from(op) {
-            Ok(EnvOp::EnvOpen) => decode(payload, "env_open")
-                .and_then(|o: EnvOpen| self.open(session_id, &o))
-                .map(|opened| vec![opened.encode_to_vec()]),
-            Ok(EnvOp::EnvReset) => decode(payload, "env_reset").and_then(|r: EnvReset| {
-                let (frames, all) = self.reset(session_id, &r)?;
-                restart = all;
-                Ok(frames)
-            }),
-            Ok(EnvOp::EnvStep) => {
-                decode(payload, "env_step").and_then(|s: EnvStep| self.step(session_id, &s))
-            }
-            Ok(EnvOp::EnvRender) => {
-                decode(payload, "env_render").and_then(|r: EnvRender| self.render(session_id, &r))
-            }
-            Ok(EnvOp::EnvClose) => match self.open.remove(&session_id) {
-                Some(_) => Ok(Vec::new()),
-                None => Err(unknown_session(session_id)),
-            },
-            _ => Err(invalid(
-                "env_request.op",
-                format!("env_request.op = {op} is not an env request this worker serves"),
-            )),
-        };
+        let result =
+            match EnvOp::try_from(op) {
+                Ok(EnvOp::EnvOpen) => decode(payload, "env_open")
+                    .and_then(|o: EnvOpen| self.open(session_id, &o))
+                    .map(|opened| vec![opened.encode_to_vec()]),
+                Ok(EnvOp::EnvReset) => decode(payload, "env_reset").and_then(|r: EnvReset| {
+                    let (frames, all) = self.reset(session_id, &r, scans)?;
+                    restart = all;
+                    Ok(frames)
+                }),
+                Ok(EnvOp::EnvStep) => decode(payload, "env_step")
+                    .and_then(|s: EnvStep| self.step(session_id, &s, scans)),
+                Ok(EnvOp::EnvRender) => decode(payload, "env_render")
+                    .and_then(|r: EnvRender| self.render(session_id, &r)),
+                Ok(EnvOp::EnvClose) => match self.open.remove(&session_id) {
+                    Some(_) => Ok(Vec::new()),
+                    None => Err(unknown_session(session_id)),
+                },
+                _ => Err(invalid(
+                    "env_request.op",
+                    format!("env_request.op = {op} is not an env request this worker serves"),
+                )),
+            };
         match result {
             Ok(frames) => {
                 let views: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
@@ -155,7 +179,11 @@ impl Sessions {
                     header: EnvReply {
                         session_id,
                         op,
-                        fingerprint: paddock_proto::fingerprint(&views),
+                        fingerprint: if self.unfingerprinted {
+                            0
+                        } else {
+                            paddock_proto::fingerprint(&views)
+                        },
                         restart,
                         error: None,
                     },
@@ -220,31 +248,40 @@ impl Sessions {
     }
 
     /// The observation frames after a reset, and whether it was a restart point.
-    fn reset(&mut self, id: u64, r: &EnvReset) -> Result<(Vec<Vec<u8>>, bool), Error> {
+    fn reset(
+        &mut self,
+        id: u64,
+        r: &EnvReset,
+        into: Option<&mut [u8]>,
+    ) -> Result<(Vec<Vec<u8>>, bool), Error> {
         let env = self.open.get_mut(&id).ok_or_else(|| unknown_session(id))?;
         let reset = paddock_wire::env::reset_from_proto(r)?;
         let all = reset.restarts_all(env.num_envs());
-        let mut scans = vec![0; env.packed_scans_len()];
+        let len = env.packed_scans_len();
+        let mut own = Vec::new();
         let result = guarded(|| {
-            env.reset_packed(
-                &reset.envs,
-                &reset.seeds,
-                reset.poses.as_deref(),
-                &mut scans,
-            )
-            .map(|f| observation(f, scans))
+            let out = scans_out(into, len, &mut own);
+            env.reset_packed(&reset.envs, &reset.seeds, reset.poses.as_deref(), out)
+                .map(|f| observation(f, std::mem::take(&mut own)))
         });
         self.finish(id, "env_reset", result).map(|f| (f, all))
     }
 
-    fn step(&mut self, id: u64, s: &EnvStep) -> Result<Vec<Vec<u8>>, Error> {
+    fn step(
+        &mut self,
+        id: u64,
+        s: &EnvStep,
+        into: Option<&mut [u8]>,
+    ) -> Result<Vec<Vec<u8>>, Error> {
         let env = self.open.get_mut(&id).ok_or_else(|| unknown_session(id))?;
         let (actions, reset) =
             paddock_wire::env::step_from_proto(s, env.num_envs(), env.num_learners())?;
-        let mut scans = vec![0; env.packed_scans_len()];
+        let len = env.packed_scans_len();
+        let mut own = Vec::new();
         let result = guarded(|| {
-            env.step_packed(&actions, &reset, &mut scans)
-                .map(|f| observation(f, scans))
+            let out = scans_out(into, len, &mut own);
+            env.step_packed(&actions, &reset, out)
+                .map(|f| observation(f, std::mem::take(&mut own)))
         });
         self.finish(id, "env_step", result)
     }
@@ -362,7 +399,20 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, Error> {
     })
 }
 
-/// The payload frames of an observation whose learners' scans `scans` holds packed.
+/// Where a reply's `len` bytes of scans are written: the caller's buffer when it has
+/// that size, else `own`, made that size (the reply's scans frame).
+fn scans_out<'a>(into: Option<&'a mut [u8]>, len: usize, own: &'a mut Vec<u8>) -> &'a mut [u8] {
+    match into {
+        Some(buf) if buf.len() == len => buf,
+        _ => {
+            own.resize(len, 0);
+            own
+        }
+    }
+}
+
+/// The payload frames of an observation whose learners' scans `scans` holds packed
+/// (empty when they went into the caller's buffer).
 fn observation(f: &paddock_rollout::env::EnvFrame, scans: Vec<u8>) -> Vec<Vec<u8>> {
     vec![
         paddock_wire::env::observation_meta(f).encode_to_vec(),
