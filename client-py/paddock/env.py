@@ -173,10 +173,17 @@ def contract_space(keys: Sequence[str], num_beams: int) -> spaces.Dict:
         for k in keys})
 
 
-def _frombuffer(data: bytes | memoryview, dtype: np.dtype, shape: tuple[int, ...],
-                field: str) -> np.ndarray:
-    """A view of ``data`` (exactly ``shape`` of ``dtype``), else ``BadMessage``."""
-    want = math.prod(shape) * dtype.itemsize
+# A reply array's element type, shape and size in bytes.
+_Layout = tuple[np.dtype, tuple[int, ...], int]
+
+
+def _layout(dtype: np.dtype, shape: tuple[int, ...]) -> _Layout:
+    return dtype, shape, math.prod(shape) * dtype.itemsize
+
+
+def _frombuffer(data: bytes | memoryview, layout: _Layout, field: str) -> np.ndarray:
+    """A view of ``data`` as ``layout`` (exactly its size), else ``BadMessage``."""
+    dtype, shape, want = layout
     if len(data) != want:
         raise errors.BadMessage(1, f"env_observation.{field}",
                                 f"{field} has {len(data)} bytes, expected {want} for shape {shape}")
@@ -253,23 +260,30 @@ class EnvSession:
         self.dt = opened.dt
         self.frame_skip = int(frame_skip)
         self.max_range = float(max_range)
+        # the reply's arrays, in the order of `_frame`
+        n, a, b, lrn = self.num_envs, self.num_agents, self.num_beams, self.num_learners
+        self._layouts = tuple(_layout(dt, shape) for dt, shape in (
+            (_F4, (n, lrn, b)), (_F8, (n, a, STATE_SIZE)), (_F8, (n, lrn)), (_U1, (n, lrn)),
+            (_U1, (n,)), (_F8, (n, lrn)), (_U4, (n, lrn)), (_F8, (n,)), (_U1, (n, a)),
+            (_U4, (n, a)), (_F8, (n, a))))
         self.closed = False
 
     def _frame(self, frames: list[Any]) -> Frame:
         o = wire.observation(frames)
-        n, a, b, lrn = self.num_envs, self.num_agents, self.num_beams, self.num_learners
+        (scans, states, rewards, terminated, truncated, progress, laps, time, collisions,
+         lap_counts, lap_times) = self._layouts
         return Frame(
-            scans=_frombuffer(o.scans, _F4, (n, lrn, b), "scans"),
-            states=_frombuffer(o.states, _F8, (n, a, STATE_SIZE), "states"),
-            learner_rewards=_frombuffer(o.rewards, _F8, (n, lrn), "rewards"),
-            learner_terminated=_frombuffer(o.terminated, _U1, (n, lrn), "terminated").astype(bool),
-            truncated=_frombuffer(o.truncated, _U1, (n,), "truncated").astype(bool),
-            learner_progress=_frombuffer(o.progress, _F8, (n, lrn), "progress"),
-            learner_laps=_frombuffer(o.laps, _U4, (n, lrn), "laps"),
-            time=_frombuffer(o.time, _F8, (n,), "time"),
-            collisions=_frombuffer(o.agent_collisions, _U1, (n, a), "agent_collisions").astype(np.float64),
-            lap_counts=_frombuffer(o.agent_lap_counts, _U4, (n, a), "agent_lap_counts").astype(np.int32),
-            lap_times=_frombuffer(o.agent_lap_times, _F8, (n, a), "agent_lap_times"),
+            scans=_frombuffer(o.scans, scans, "scans"),
+            states=_frombuffer(o.states, states, "states"),
+            learner_rewards=_frombuffer(o.rewards, rewards, "rewards"),
+            learner_terminated=_frombuffer(o.terminated, terminated, "terminated").astype(bool),
+            truncated=_frombuffer(o.truncated, truncated, "truncated").astype(bool),
+            learner_progress=_frombuffer(o.progress, progress, "progress"),
+            learner_laps=_frombuffer(o.laps, laps, "laps"),
+            time=_frombuffer(o.time, time, "time"),
+            collisions=_frombuffer(o.agent_collisions, collisions, "agent_collisions").astype(np.float64),
+            lap_counts=_frombuffer(o.agent_lap_counts, lap_counts, "agent_lap_counts").astype(np.int32),
+            lap_times=_frombuffer(o.agent_lap_times, lap_times, "agent_lap_times"),
         )
 
     def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,

@@ -52,6 +52,8 @@ _ENV, _PUT_MAP, _PUT_BLOB, _SHIPPED = 1, 2, 3, 4
 # fewer are copied out of its frame, which costs less than making and handing an array
 # (about a microsecond) at that size.
 _IN_PLACE_MIN = 64 << 10
+# Room for this many frames' addresses (a reply's header and two payload frames).
+_FRAMES = 4
 
 
 def _library_name() -> str:
@@ -138,9 +140,9 @@ def _library() -> ctypes.CDLL:
             lib.paddock_embed_call.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64,
                                                ctypes.c_int32, ctypes.c_char_p, ctypes.c_size_t,
                                                ctypes.c_void_p, ctypes.c_size_t]
-            lib.paddock_embed_frame.restype = ctypes.c_size_t
-            lib.paddock_embed_frame.argtypes = [ctypes.c_void_p, ctypes.c_size_t,
-                                                ctypes.POINTER(ctypes.c_void_p)]
+            lib.paddock_embed_frames.restype = ctypes.c_size_t
+            lib.paddock_embed_frames.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p),
+                                                 ctypes.POINTER(ctypes.c_size_t), ctypes.c_size_t]
             _LIB = lib
         return _LIB
 
@@ -177,6 +179,10 @@ class InProcess(MapsAndModels):
         _check_not_forked()
         self._lib = _library()
         self._lock = threading.Lock()
+        # where the library writes the last reply's frames' addresses and lengths (room
+        # for four; a reply with more is read again with room for all)
+        self._data = (ctypes.c_void_p * _FRAMES)()
+        self._lens = (ctypes.c_size_t * _FRAMES)()
         # session id -> the bytes of its step's scans (num_envs x learners x beams x f32)
         self._scan_bytes: dict[int, int] = {}
         self._handle = self._lib.paddock_embed_new()
@@ -199,12 +205,16 @@ class InProcess(MapsAndModels):
                                              into, size)
             if n < -1:
                 raise errors.ServerStartError(f"the in-process simulator answered {n}")
-            frames = []
-            data = ctypes.c_void_p()
-            # a refusal (-1) is one frame: the encoded Error
-            for i in range(1 if n == -1 else n):
-                size = self._lib.paddock_embed_frame(self._handle, i, ctypes.byref(data))
-                frames.append(Frame(ctypes.string_at(data.value, size) if size else b""))
+            # every frame's address and length in one call; a refusal (-1) is one frame,
+            # the encoded Error
+            count = self._lib.paddock_embed_frames(self._handle, self._data, self._lens, _FRAMES)
+            if count > _FRAMES:
+                self._data = (ctypes.c_void_p * count)()
+                self._lens = (ctypes.c_size_t * count)()
+                self._lib.paddock_embed_frames(self._handle, self._data, self._lens, count)
+            data, lens = self._data, self._lens
+            frames = [Frame(ctypes.string_at(data[i], lens[i]) if lens[i] else b"")
+                      for i in range(count)]
         if n == -1:
             e = pb.Error.FromString(frames[0].bytes)
             raise errors.from_reply(e.code, e.field, e.message)

@@ -306,5 +306,35 @@ pub unsafe extern "C" fn paddock_embed_frame(
     len
 }
 
+/// Every frame of the last reply at once (one call instead of one per frame): the
+/// address and length of frame `i` written to `data[i]` and `lens[i]` for the first `cap`
+/// frames; returns the number of frames (0 for a null handle).
+///
+/// # Safety
+/// `h` must be a live handle (or null); `data` and `lens` must each point to `cap`
+/// writable elements (either may be null when `cap` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn paddock_embed_frames(
+    h: *const Embedded,
+    data: *mut *const u8,
+    lens: *mut usize,
+    cap: usize,
+) -> usize {
+    // SAFETY: the caller passes a live handle or null.
+    let Some(frames) = (unsafe { h.as_ref() }).map(Embedded::frames) else {
+        return 0;
+    };
+    if !data.is_null() && !lens.is_null() {
+        for (i, f) in frames.iter().take(cap).enumerate() {
+            // SAFETY: the caller passes `cap` writable elements at each; i < cap.
+            unsafe {
+                *data.add(i) = f.as_ptr();
+                *lens.add(i) = f.len();
+            }
+        }
+    }
+    frames.len()
+}
+
 #[cfg(test)]
 mod tests;

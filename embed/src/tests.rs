@@ -43,6 +43,18 @@ fn call_into(
         // SAFETY: the library keeps `len` bytes at `data` until the next call.
         frames.push(unsafe { std::slice::from_raw_parts(data, len) }.to_vec());
     }
+    // all at once, as the Python package reads them: the same frames
+    let (mut data, mut lens) = ([std::ptr::null(); 4], [0usize; 4]);
+    // SAFETY: a live handle; four writable elements at each.
+    let count = unsafe { paddock_embed_frames(h, data.as_mut_ptr(), lens.as_mut_ptr(), 4) };
+    assert_eq!(count, frames.len());
+    for (i, f) in frames.iter().enumerate().take(4) {
+        // SAFETY: as above.
+        assert_eq!(
+            unsafe { std::slice::from_raw_parts(data[i], lens[i]) },
+            &f[..]
+        );
+    }
     (status, frames)
 }
 
@@ -229,6 +241,22 @@ fn bad_requests_are_refused_with_the_field_named() {
     // SAFETY: a live handle; `data` is writable.
     assert_eq!(unsafe { paddock_embed_frame(h, 5, &mut data) }, 0);
     assert!(data.is_null());
+    // SAFETY: a null handle has no frames; nothing is written with no room.
+    unsafe {
+        assert_eq!(
+            paddock_embed_frames(
+                std::ptr::null(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                0
+            ),
+            0
+        );
+        assert_eq!(
+            paddock_embed_frames(h, std::ptr::null_mut(), std::ptr::null_mut(), 0),
+            1
+        );
+    }
     // SAFETY: a null handle is answered -2; nothing is read.
     assert_eq!(
         unsafe {
