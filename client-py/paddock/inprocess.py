@@ -263,6 +263,7 @@ class InProcess(MapsAndModels):
             if self._handle:
                 self._lib.paddock_embed_free(self._handle)
                 self._handle = None
+            self._scan_bytes.clear()
 
     def __enter__(self) -> "InProcess":
         return self

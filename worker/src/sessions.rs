@@ -174,16 +174,17 @@ impl Sessions {
             };
         match result {
             Ok(frames) => {
-                let views: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+                let fingerprint = if self.unfingerprinted {
+                    0
+                } else {
+                    let views: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+                    paddock_proto::fingerprint(&views)
+                };
                 Reply {
                     header: EnvReply {
                         session_id,
                         op,
-                        fingerprint: if self.unfingerprinted {
-                            0
-                        } else {
-                            paddock_proto::fingerprint(&views)
-                        },
+                        fingerprint,
                         restart,
                         error: None,
                     },
