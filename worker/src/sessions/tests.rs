@@ -306,3 +306,42 @@ fn maps_from_the_cache_by_hash() {
     gone.map.as_mut().unwrap().hash = "cd".repeat(32); // ok: test
     assert_eq!(s.missing_map(&gone.encode_to_vec()), Some("cd".repeat(32)));
 }
+
+#[test]
+fn scans_go_into_the_callers_buffer_and_fingerprints_can_be_left_out() {
+    // twin sessions: one as a worker runs it, one as the in-process library does
+    let (mut worker, mut local) = (Sessions::new(), Sessions::new());
+    local.set_fingerprints(false);
+    let opened = open(&mut worker, 3, 2);
+    open(&mut local, 3, 2);
+    let len = 2 * opened.num_beams as usize * 4;
+    let mut buf = vec![0x5au8; len];
+    let reset = EnvReset::default().encode_to_vec();
+    for (op, payload) in [
+        (RESET, reset),
+        (STEP, step(actions(2))),
+        (STEP, step(actions(2))),
+    ] {
+        let want = worker.handle(3, op, &payload);
+        let (meta, scans) = expect_obs(want.clone());
+        let got = local.handle_into(3, op, &payload, Some(&mut buf));
+        assert!(got.header.error.is_none(), "{:?}", got.header.error);
+        assert_eq!(got.header.fingerprint, 0, "left out");
+        assert_eq!(
+            (got.header.restart, got.header.op),
+            (want.header.restart, op)
+        );
+        assert_eq!(got.frames[0], meta.encode_to_vec());
+        assert!(got.frames[1].is_empty(), "the scans are in the buffer");
+        assert!(buf == scans, "the worker's scans, bit for bit");
+    }
+    // a buffer of another size is not written: the scans come as a frame
+    let mut short = vec![0x5au8; len - 4];
+    let want = worker.handle(3, STEP, &step(actions(2)));
+    let got = local.handle_into(3, STEP, &step(actions(2)), Some(&mut short));
+    assert_eq!(got.frames, want.frames);
+    assert!(short.iter().all(|&b| b == 0x5a));
+    // errors are as from `handle`, and the buffer is left alone
+    let got = local.handle_into(3, STEP, &step(actions(1)), Some(&mut buf));
+    assert!(expect_err(got).field.contains("actions"));
+}
