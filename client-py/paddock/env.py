@@ -546,7 +546,7 @@ class F110VectorEnv(VectorEnv):
             what = "num_envs x [steer, speed]" if learners == 1 else \
                 "num_envs x learners x [steer, speed]"
             raise ValueError(f"actions must have shape {want} ({what}), got {a.shape}")
-        f = self.session.step(a, reset_envs=np.flatnonzero(self._autoreset).tolist())
+        f = self.session.step(a, reset_envs=self._autoreset.nonzero()[0].tolist())
         self._autoreset = f.terminated | f.truncated
         return f.obs(), f.rewards, f.terminated, f.truncated, f.info()
 

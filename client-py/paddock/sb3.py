@@ -294,7 +294,7 @@ class VecEnv(_Base):
         truncated = np.array(f.truncated, dtype=bool)
         dones = terminated | truncated
         infos = [self._info(f, i) for i in range(self.num_envs)]
-        ended = [int(i) for i in np.flatnonzero(dones)]
+        ended = dones.nonzero()[0].tolist()
         for i in range(self.num_envs):
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         if ended:
