@@ -259,11 +259,8 @@ impl Sessions {
         let reset = paddock_wire::env::reset_from_proto(r)?;
         let all = reset.restarts_all(env.num_envs());
         let len = env.packed_scans_len();
-        let mut own = Vec::new();
-        let result = guarded(|| {
-            let out = scans_out(into, len, &mut own);
+        let result = observed(len, into, move |out| {
             env.reset_packed(&reset.envs, &reset.seeds, reset.poses.as_deref(), out)
-                .map(|f| observation(f, std::mem::take(&mut own)))
         });
         self.finish(id, "env_reset", result).map(|f| (f, all))
     }
@@ -278,12 +275,7 @@ impl Sessions {
         let (actions, reset) =
             paddock_wire::env::step_from_proto(s, env.num_envs(), env.num_learners())?;
         let len = env.packed_scans_len();
-        let mut own = Vec::new();
-        let result = guarded(|| {
-            let out = scans_out(into, len, &mut own);
-            env.step_packed(&actions, &reset, out)
-                .map(|f| observation(f, std::mem::take(&mut own)))
-        });
+        let result = observed(len, into, move |out| env.step_packed(&actions, &reset, out));
         self.finish(id, "env_step", result)
     }
 
@@ -400,16 +392,23 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, Error> {
     })
 }
 
-/// Where a reply's `len` bytes of scans are written: the caller's buffer when it has
-/// that size, else `own`, made that size (the reply's scans frame).
-fn scans_out<'a>(into: Option<&'a mut [u8]>, len: usize, own: &'a mut Vec<u8>) -> &'a mut [u8] {
-    match into {
-        Some(buf) if buf.len() == len => buf,
+/// The observation frames of `call` (a step or reset writing `len` bytes of scans into
+/// the buffer it is given), a panic as an `INTERNAL` error: the scans go into the
+/// caller's buffer `into` when it has that size (the scans frame then empty), else into
+/// a frame of their own.
+fn observed<'e>(
+    len: usize,
+    into: Option<&mut [u8]>,
+    call: impl FnOnce(&mut [u8]) -> Result<&'e paddock_rollout::env::EnvFrame, RolloutError>,
+) -> Result<Result<Vec<Vec<u8>>, RolloutError>, Error> {
+    guarded(|| match into {
+        Some(buf) if buf.len() == len => call(buf).map(|f| observation(f, Vec::new())),
         _ => {
-            own.resize(len, 0);
-            own
+            let mut own = vec![0; len];
+            let f = call(&mut own)?;
+            Ok(observation(f, own))
         }
-    }
+    })
 }
 
 /// The payload frames of an observation whose learners' scans `scans` holds packed
