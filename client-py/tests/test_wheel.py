@@ -41,6 +41,14 @@ USER = textwrap.dedent("""
             assert obs["scans"].shape == (1, 108) and not terminated
             env.close()
             print("stepped", m, endpoint)
+    # 16 envs' scans (69 KB) are written by the library into the array this process gets
+    vec = paddock.make_vec(16, paddock.IN_PROCESS, num_beams=1080, time_limit=5.0)
+    vec.reset(seed=1)
+    obs = vec.step(np.zeros((16, 2), dtype=np.float32))[0]
+    assert obs["scans"].shape == (16, 1, 1080) and not obs["scans"].flags.writeable
+    assert (obs["scans"] > 0).all()
+    vec.close()
+    print("16 envs in place")
 """)
 
 
@@ -85,6 +93,7 @@ def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
         out = run([py, str(script), str(venv), harbour, binary, library], cwd=elsewhere,
                   env={**env, "PADDOCK_BIN": binary})
         assert out.stdout.count("stepped") == 6, out.stdout
+        assert "16 envs in place" in out.stdout, out.stdout
 
     # the wheel: the package and its binary, nothing else needed
     run([py, "-m", "pip", "uninstall", "-q", "-y", "paddock"])
@@ -94,3 +103,4 @@ def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
     out = run([py, str(script), str(venv), harbour, str(venv / "bin" / "paddock"),
                str(Path(site) / "_native" / "libpaddock_embed.so")], cwd=elsewhere, env=env)
     assert out.stdout.count("stepped") == 6, out.stdout
+    assert "16 envs in place" in out.stdout, out.stdout
