@@ -113,6 +113,16 @@ fn under_curve(z: &Ziggurat, i: usize, ax: f64, y: f64) -> bool {
     y < libm::exp(-0.5 * ax * ax)
 }
 
+/// Adds `v` to `r` (`ADD`), or sets it.
+#[inline(always)]
+fn put<const ADD: bool>(r: &mut f64, v: f64) {
+    if ADD {
+        *r += v;
+    } else {
+        *r = v;
+    }
+}
+
 #[inline]
 fn splitmix64(state: &mut u64) -> u64 {
     *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -220,12 +230,12 @@ impl Rng {
     /// Adds `mean + std * normal()` to every value of `out`, in order: the same draws and
     /// bits as calling [`Rng::normal_with`] per value, with the table lookup hoisted; with
     /// AVX2 (where the CPU has it) the fast path four draws at a time
-    /// ([`Rng::add_normal_avx2`]), the same bits again.
+    /// ([`Rng::normals_avx2`]), the same bits again.
     pub fn add_normal(&mut self, out: &mut [f64], mean: f64, std: f64) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (checked just above).
-            unsafe { self.add_normal_avx2(out, mean, std) };
+            unsafe { self.normals_avx2::<true>(out, mean, std, &mut || {}) };
             return;
         }
         self.add_normal_scalar(out, mean, std);
@@ -239,8 +249,38 @@ impl Rng {
         }
     }
 
-    /// [`Rng::add_normal`] eight draws at a time: the stream's next eight outputs drawn
-    /// ahead (its one sequential chain), then the ziggurat's fast path on four lanes
+    /// Sets every value of `out` to `mean + std * normal()`, in order (the draws of
+    /// [`Rng::add_normal`]: adding these values to others later gives its bits), and
+    /// calls `alongside` at least `out.len() / 8` times as it goes, once per batch of at
+    /// most eight draws. The draws wait on the generator's one sequential chain of
+    /// integer operations; work in `alongside` that does not (divisions, say) runs in
+    /// their shadow.
+    pub fn normals_alongside(
+        &mut self,
+        out: &mut [f64],
+        mean: f64,
+        std: f64,
+        mut alongside: impl FnMut(),
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            unsafe { self.normals_avx2::<false>(out, mean, std, &mut alongside) };
+            return;
+        }
+        let z = ziggurat();
+        for (k, r) in out.iter_mut().enumerate() {
+            if k % 8 == 0 {
+                alongside();
+            }
+            *r = mean + std * self.normal_from(z);
+        }
+    }
+
+    /// [`Rng::add_normal`] (`ADD`) or [`Rng::normals_alongside`] (values set, not added)
+    /// eight draws at a time, `alongside` called before each batch: the stream's next
+    /// eight outputs drawn ahead (its one sequential chain), then the ziggurat's fast path
+    /// on four lanes
     /// (`u` built from the bits exactly as the scalar conversion rounds it, the table's
     /// two edges of each draw's layer loaded as a pair). A draw outside its layer's core
     /// ends the batch: the values before it are kept, the state is stepped again to just
@@ -251,7 +291,14 @@ impl Rng {
     /// The CPU must support AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn add_normal_avx2(&mut self, out: &mut [f64], mean: f64, std: f64) {
+    #[inline]
+    unsafe fn normals_avx2<const ADD: bool>(
+        &mut self,
+        out: &mut [f64],
+        mean: f64,
+        std: f64,
+        alongside: &mut impl FnMut(),
+    ) {
         use std::arch::x86_64::*;
         const BATCH: usize = 8;
         let z = ziggurat();
@@ -263,6 +310,7 @@ impl Rng {
         let sign = _mm256_set1_pd(-0.0);
         let mut k = 0;
         while k + BATCH <= out.len() {
+            alongside();
             let start = s;
             let bits: [u64; BATCH] = std::array::from_fn(|_| xoshiro(&mut s));
             let mut xs = [_mm256_setzero_pd(); BATCH / 4];
@@ -299,7 +347,12 @@ impl Rng {
                     unsafe {
                         let at = out.as_mut_ptr().add(k + 4 * h);
                         let noisy = _mm256_add_pd(vmean, _mm256_mul_pd(vstd, *x));
-                        _mm256_storeu_pd(at, _mm256_add_pd(_mm256_loadu_pd(at), noisy));
+                        let v = if ADD {
+                            _mm256_add_pd(_mm256_loadu_pd(at), noisy)
+                        } else {
+                            noisy
+                        };
+                        _mm256_storeu_pd(at, v);
                     }
                 }
                 k += BATCH;
@@ -311,7 +364,7 @@ impl Rng {
                 unsafe { _mm256_storeu_pd(vals.as_mut_ptr().add(4 * h), *x) };
             }
             for l in 0..kept {
-                out[k + l] += mean + std * vals[l];
+                put::<ADD>(&mut out[k + l], mean + std * vals[l]);
             }
             // The state just after the draw that left its core, then its slow path.
             s = start;
@@ -322,12 +375,12 @@ impl Rng {
             self.s = s;
             let x = self.normal_slow(z, i, u, u * z.x[i]);
             s = self.s;
-            out[k + kept] += mean + std * x;
+            put::<ADD>(&mut out[k + kept], mean + std * x);
             k += kept + 1;
         }
         self.s = s;
         for r in &mut out[k..] {
-            *r += mean + std * self.normal_from(z);
+            put::<ADD>(r, mean + std * self.normal_from(z));
         }
     }
 
@@ -388,12 +441,23 @@ mod tests {
             let (mean, std) = ([0.0, 0.5, -3.25][n % 3], [0.01, 1.0, 7.5][n % 3]);
             let (mut a, mut b) = (Rng::new(100 + n as u64), Rng::new(100 + n as u64));
             let (mut got, mut want) = (base.clone(), base.clone());
+            let mut c = a.clone();
             a.add_normal(&mut got, mean, std);
             b.add_normal_scalar(&mut want, mean, std);
             for k in 0..len {
                 assert_eq!(got[k].to_bits(), want[k].to_bits(), "value {k} of {len}");
             }
             assert_eq!(a, b, "state after {len} values");
+            // Set rather than added, with work alongside: added later, the same bits.
+            let mut set = vec![f64::NAN; len];
+            let mut calls = 0;
+            c.normals_alongside(&mut set, mean, std, || calls += 1);
+            for k in 0..len {
+                let sum = base[k] + set[k];
+                assert_eq!(sum.to_bits(), want[k].to_bits(), "set value {k} of {len}");
+            }
+            assert_eq!(c, b, "state after {len} values set");
+            assert!(calls >= len / 8, "{calls} calls alongside {len} draws");
         }
     }
 

@@ -244,11 +244,38 @@ impl Lidar {
     /// # Panics
     /// If `out.len() != num_beams`.
     pub fn scan(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64]) {
-        self.scan_with(map, pose, shapes, out, self.path());
+        self.scan_with(map, pose, shapes, out, self.path(), None);
     }
 
-    /// [`Lidar::scan`] on `path` (which the caller checked this CPU supports).
-    fn scan_with(&self, map: &Map, pose: Pose, shapes: &[Obb], out: &mut [f64], path: ScanPath) {
+    /// [`Lidar::scan`] then [`Lidar::add_noise`] with `rng`: the same values and the same
+    /// generator state after. Faster where the sweep takes the scan with AVX: its per-beam
+    /// set-up (two divisions a beam) and the noise's draws (a chain of integer operations)
+    /// are done together, each in the other's shadow.
+    ///
+    /// # Panics
+    /// If `out.len() != num_beams`.
+    pub fn scan_noisy(
+        &self,
+        map: &Map,
+        pose: Pose,
+        shapes: &[Obb],
+        out: &mut [f64],
+        rng: &mut Rng,
+    ) {
+        self.scan_with(map, pose, shapes, out, self.path(), Some(rng));
+    }
+
+    /// [`Lidar::scan`] on `path` (which the caller checked this CPU supports), then
+    /// [`Lidar::add_noise`] with `noise` if given (drawn during the scan where that pays).
+    fn scan_with(
+        &self,
+        map: &Map,
+        pose: Pose,
+        shapes: &[Obb],
+        out: &mut [f64],
+        path: ScanPath,
+        mut noise: Option<&mut Rng>,
+    ) {
         let n = self.config.num_beams;
         assert_eq!(out.len(), n, "scan buffer length must equal num_beams");
         let (x, y) = self.origin(pose);
@@ -302,7 +329,10 @@ impl Lidar {
             boxes: &boxes,
         };
         let Some(trial) = pick.trial else {
-            self.scan_on(map, &job, out, path);
+            self.scan_on(map, &job, out, path, &mut noise);
+            if let Some(rng) = noise {
+                self.add_noise(out, rng);
+            }
             return;
         };
         // A trial scan: by both algorithms, the picked one first, each timed (the same
@@ -311,29 +341,41 @@ impl Lidar {
         for sweep in [pick.sweep, !pick.sweep] {
             let job = ScanJob { sweep, ..job };
             let start = std::time::Instant::now();
-            self.scan_on(map, &job, out, path);
+            self.scan_on(map, &job, out, path, &mut None);
             nanos[usize::from(sweep)] =
                 u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
         }
         SCAN_CHOICE.with_borrow_mut(|c| c.timed(trial, nanos[0], nanos[1]));
+        if let Some(rng) = noise {
+            self.add_noise(out, rng);
+        }
     }
 
-    /// The scan of `job` on the widest of `path` and the paths `map` allows.
-    fn scan_on(&self, map: &Map, job: &ScanJob, out: &mut [f64], path: ScanPath) {
+    /// The scan of `job` on the widest of `path` and the paths `map` allows. Takes
+    /// `noise` where it draws the scan's noise and adds it (see [`Lidar::scan_noisy`]);
+    /// else leaves it to the caller.
+    fn scan_on(
+        &self,
+        map: &Map,
+        job: &ScanJob,
+        out: &mut [f64],
+        path: ScanPath,
+        noise: &mut Option<&mut Rng>,
+    ) {
         #[cfg(target_arch = "x86_64")]
         {
             if path >= ScanPath::Avx512 && march::avx512_usable(map) {
                 // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F and AVX2.
-                unsafe { self.scan_avx512(map, job, out) };
+                unsafe { self.scan_avx512(map, job, out, noise) };
                 return;
             }
             if path >= ScanPath::Avx && march::avx_usable(map) {
                 // SAFETY: `avx_usable` checked that the CPU supports AVX.
-                unsafe { self.scan_avx(map, job, out, path.level()) };
+                unsafe { self.scan_avx(map, job, out, path.level(), noise) };
                 return;
             }
         }
-        self.scan_chunks::<false>(map, job, out, 0);
+        self.scan_chunks::<false>(map, job, out, 0, noise);
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX enabled, so that its simple per-beam loops
@@ -343,8 +385,15 @@ impl Lidar {
     /// The CPU must support AVX.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
-    unsafe fn scan_avx(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
-        self.scan_chunks::<true>(map, job, out, level);
+    unsafe fn scan_avx(
+        &self,
+        map: &Map,
+        job: &ScanJob,
+        out: &mut [f64],
+        level: u8,
+        noise: &mut Option<&mut Rng>,
+    ) {
+        self.scan_chunks::<true>(map, job, out, level, noise);
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX-512 enabled (the march itself picks its
@@ -354,16 +403,29 @@ impl Lidar {
     /// The CPU must support AVX-512F and AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx2")]
-    unsafe fn scan_avx512(&self, map: &Map, job: &ScanJob, out: &mut [f64]) {
-        self.scan_chunks::<true>(map, job, out, 2);
+    unsafe fn scan_avx512(
+        &self,
+        map: &Map,
+        job: &ScanJob,
+        out: &mut [f64],
+        noise: &mut Option<&mut Rng>,
+    ) {
+        self.scan_chunks::<true>(map, job, out, 2, noise);
     }
 
     /// The scan by the sweep if `job` asks for it and it applies, else the beams in
     /// chunks: box limits, grid directions, the march (at most SIMD level `level`, see
-    /// [`ScanPath`]), metres.
+    /// [`ScanPath`]), metres. `noise` as in [`Lidar::scan_on`].
     #[inline(always)]
-    fn scan_chunks<const AVX: bool>(&self, map: &Map, job: &ScanJob, out: &mut [f64], level: u8) {
-        if job.sweep && self.scan_sweep::<AVX>(map, job, out, level) {
+    fn scan_chunks<const AVX: bool>(
+        &self,
+        map: &Map,
+        job: &ScanJob,
+        out: &mut [f64],
+        level: u8,
+        noise: &mut Option<&mut Rng>,
+    ) {
+        if job.sweep && self.scan_sweep::<AVX>(map, job, out, level, noise) {
             return;
         }
         let n = out.len();
@@ -397,7 +459,8 @@ impl Lidar {
     }
 
     /// The scan by the angular sweep (see `sweep`), the beams it leaves to the march
-    /// marched; false (nothing written) when the sweep does not apply.
+    /// marched; false (nothing written) when the sweep does not apply. With `AVX` it
+    /// takes `noise` (see [`Lidar::scan_on`]) and draws it alongside its set-up.
     #[inline(always)]
     fn scan_sweep<const AVX: bool>(
         &self,
@@ -405,6 +468,7 @@ impl Lidar {
         job: &ScanJob,
         out: &mut [f64],
         level: u8,
+        noise: &mut Option<&mut Rng>,
     ) -> bool {
         let n = out.len();
         let fov = self.config.fov;
@@ -428,13 +492,25 @@ impl Lidar {
             sw.uniform = None;
             self.box_limits(job, 0, &mut sw.limit);
         }
-        sw.prepare(&self.beam_cos, &self.beam_sin, job.gc, job.gs, job.inv_res);
-        sw.run::<AVX>(faces, job.gx, job.gy, job.res, &fan, out);
+        // With AVX the scan's noise is drawn alongside the set-up, into `out`, and the
+        // ranges added to it.
+        let noise = if AVX { noise.take() } else { None };
+        let noisy = noise.is_some();
+        let noise = noise.map(|rng| (rng, self.config.noise_std, &mut *out));
+        sw.prepare(
+            &self.beam_cos,
+            &self.beam_sin,
+            job.gc,
+            job.gs,
+            job.inv_res,
+            noise,
+        );
+        sw.run::<AVX>(faces, job.gx, job.gy, job.res, &fan, out, noisy);
         if !sw.marched.is_empty() {
             let mut batch = SCAN_BATCH.take().unwrap_or_else(march::Batch::new);
             batch.simd = level;
             let mut cells = [0.0; march::CHUNK];
-            for chunk in sw.marched.chunks(march::CHUNK) {
+            for (c, chunk) in sw.marched.chunks(march::CHUNK).enumerate() {
                 for (j, &i) in chunk.iter().enumerate() {
                     let i = i as usize;
                     (batch.dx[j], batch.dy[j], batch.tmax[j]) =
@@ -443,7 +519,13 @@ impl Lidar {
                 batch.cast::<AVX>(map, job.gx, job.gy, chunk.len(), &mut cells);
                 for (j, &i) in chunk.iter().enumerate() {
                     let i = i as usize;
-                    out[i] = metres(cells[j], job.res, sw.limit_of(i));
+                    let r = metres(cells[j], job.res, sw.limit_of(i));
+                    // the noise after the range, as `add_noise` adds it
+                    out[i] = if noisy {
+                        r + sw.marched_noise[c * march::CHUNK + j]
+                    } else {
+                        r
+                    };
                 }
             }
             SCAN_BATCH.set(Some(batch));

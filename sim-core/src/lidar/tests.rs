@@ -384,7 +384,7 @@ fn scan_is_bit_identical_across_simd_paths() {
         for _ in 0..5 {
             let (pose, boxes) = random_scene(&mut rng, &map, 1.0, 4.0, 4);
             lidar.scan(&map, pose, &boxes, &mut fast);
-            lidar.scan_with(&map, pose, &boxes, &mut portable, ScanPath::Portable);
+            lidar.scan_with(&map, pose, &boxes, &mut portable, ScanPath::Portable, None);
             for (i, (a, b)) in fast.iter().zip(&portable).enumerate() {
                 assert_eq!(a.to_bits(), b.to_bits(), "beam {i} from {pose:?}");
             }
@@ -492,10 +492,10 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
         let n = lidar.num_beams();
         let (mut want, mut got) = (vec![0.0; n], vec![0.0; n]);
         let march = lidar.clone().with_sweep(false);
-        march.scan_with(map, pose, boxes, &mut want, ScanPath::Portable);
+        march.scan_with(map, pose, boxes, &mut want, ScanPath::Portable, None);
         let swept = lidar.clone().with_sweep(true);
         for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
-            swept.scan_with(map, pose, boxes, &mut got, path);
+            swept.scan_with(map, pose, boxes, &mut got, path, None);
             for (i, (a, b)) in got.iter().zip(&want).enumerate() {
                 assert_eq!(
                     a.to_bits(),
@@ -562,6 +562,108 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
         per_path * 4 * 168
     );
     assert!(handed > 0, "no beam was left to the march");
+}
+
+/// A scan with its noise drawn during the scan (`scan_noisy`) gives the bits and the
+/// generator state of the scan then `add_noise`: on every path, by each algorithm and by
+/// `auto` (whose trial scans add the noise after), with boxes and without, on fans whose
+/// beams are and are not a multiple of the set-up's blocks, from poses the sweep takes,
+/// leaves some beams of to the march, or leaves whole to it.
+#[test]
+fn noisy_scans_are_the_scan_then_its_noise() {
+    let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
+    let (track, map) = (&circuit.track, &circuit.map);
+    let mut configs = fans().to_vec();
+    configs.push(LidarConfig {
+        num_beams: 9,
+        fov: std::f64::consts::PI,
+        noise_std: 0.5,
+        ..LidarConfig::default()
+    });
+    let mut rng = Rng::new(77);
+    let mut scenes = Vec::new();
+    for k in 0..24 {
+        let (p, _, _) = track.at(rng.uniform_range(0.0, track.length()));
+        let pose = match k % 3 {
+            0 => p,
+            // at a cell centre, beams through cell corners: some beams to the march
+            1 => {
+                let (gx, gy) = map.world_to_grid(p.x, p.y);
+                let (x, y) = map.grid_to_world(gx.floor() + 0.5, gy.floor() + 0.5);
+                Pose::new(x, y, (k % 16) as f64 * std::f64::consts::FRAC_PI_8)
+            }
+            // on a grid line: the whole scan to the march
+            _ => {
+                let (gx, gy) = map.world_to_grid(p.x, p.y);
+                let (x, y) = map.grid_to_world(gx.floor(), gy);
+                Pose::new(x, y, p.theta)
+            }
+        };
+        let boxes = if k % 2 == 0 {
+            random_scene(&mut rng, map, 0.0, 0.0, 4).1
+        } else {
+            Vec::new()
+        };
+        let boxes: Vec<Obb> = boxes
+            .iter()
+            .map(|b| Obb {
+                cx: pose.x + (b.cx - map.origin().x) % 2.0,
+                cy: pose.y + (b.cy - map.origin().y) % 2.0,
+                ..*b
+            })
+            .collect();
+        scenes.push((pose, boxes));
+    }
+    let handed = || {
+        let sw = SCAN_SWEEP.take().unwrap_or_default();
+        let h = sw.handed;
+        SCAN_SWEEP.set(Some(sw));
+        h
+    };
+    let handed0 = handed();
+    for config in &configs {
+        for algorithm in [
+            ScanAlgorithm::Auto,
+            ScanAlgorithm::Sweep,
+            ScanAlgorithm::March,
+        ] {
+            let lidar = Lidar::new(config.clone()).with_algorithm(algorithm);
+            let n = lidar.num_beams();
+            let (mut want, mut got) = (vec![0.0; n], vec![0.0; n]);
+            for path in ScanPath::ALL.into_iter().filter(|p| p.supported()) {
+                let (mut a, mut b) = (Rng::new(5), Rng::new(5));
+                for (i, (pose, boxes)) in scenes.iter().enumerate() {
+                    lidar.scan_with(map, *pose, boxes, &mut want, path, None);
+                    lidar.add_noise(&mut want, &mut a);
+                    lidar.scan_with(map, *pose, boxes, &mut got, path, Some(&mut b));
+                    for (j, (g, w)) in got.iter().zip(&want).enumerate() {
+                        assert_eq!(
+                            g.to_bits(),
+                            w.to_bits(),
+                            "{algorithm:?} {path}, {n} beams, scene {i}, beam {j}"
+                        );
+                    }
+                    assert_eq!(a, b, "{algorithm:?} {path}, {n} beams, scene {i}");
+                }
+            }
+        }
+    }
+    assert!(
+        handed() > handed0,
+        "no beam of a swept scan was left to the march"
+    );
+    // the public call is the same
+    let lidar = Lidar::new(LidarConfig::default());
+    let (mut want, mut got) = (vec![0.0; 1080], vec![0.0; 1080]);
+    let (mut a, mut b) = (Rng::new(8), Rng::new(8));
+    lidar.scan(map, scenes[0].0, &scenes[0].1, &mut want);
+    lidar.add_noise(&mut want, &mut a);
+    lidar.scan_noisy(map, scenes[0].0, &scenes[0].1, &mut got, &mut b);
+    assert_eq!(
+        got.iter().map(|r| r.to_bits()).collect::<Vec<_>>(),
+        want.iter().map(|r| r.to_bits()).collect::<Vec<_>>()
+    );
+    assert_eq!(a, b);
 }
 
 #[test]

@@ -405,8 +405,16 @@ impl World {
                     .map(|(_, o)| *o),
             );
             self.seen.extend_from_slice(&state.obstacles);
-            match self.config.agents[i].params.laser_mount {
-                // the LIDAR places its origin `mount_offset` ahead of the pose itself
+            let noisy = self.config.lidar.noise_std > 0.0;
+            let mount = self.config.agents[i].params.laser_mount;
+            match mount {
+                // the LIDAR places its origin `mount_offset` ahead of the pose itself (and
+                // draws the noise during the scan: the same values as after it)
+                None if noisy => {
+                    let map = &self.circuit.map;
+                    self.lidar
+                        .scan_noisy(map, pose, &self.seen, out, &mut agent.noise);
+                }
                 None => self.lidar.scan(&self.circuit.map, pose, &self.seen, out),
                 Some(m) => {
                     // this car's mount replaces `mount_offset`: the origin at (x, y) in
@@ -427,7 +435,7 @@ impl World {
                     }
                 }
             }
-            if self.config.lidar.noise_std > 0.0 {
+            if noisy && mount.is_some() {
                 self.lidar.add_noise(out, &mut agent.noise);
             }
         }

@@ -191,6 +191,63 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
     }
 }
 
+/// The per-beam arrays `super::Beams::prepare` reads and fills, for [`prepare4`] (called
+/// once per batch of the noise's draws, where slices' bounds checks each time cost more
+/// than the work).
+#[derive(Clone, Copy)]
+pub(super) struct BeamPtrs {
+    pub bc: *const f64,
+    pub bs: *const f64,
+    pub dx: *mut f64,
+    pub dy: *mut f64,
+    pub inv_dx: *mut f64,
+    pub inv_dy: *mut f64,
+    /// The first `best` of each beam: `limit[j] * inv_res + 1.0`, or `start` for every
+    /// beam where `limit` is null.
+    pub best: *mut f64,
+    pub limit: *const f64,
+    pub inv_res: f64,
+    pub start: f64,
+}
+
+/// `super::Beams::prepare` for beams `j..j + 4`: their directions in the grid frame (the
+/// beams' `bc`, `bs` turned by the heading's `gc`, `gs`), the inverses of those and their
+/// first ranges, the same operations lane by lane, so the same bits (-0.0 made 0.0 as
+/// there).
+///
+/// # Safety
+/// The CPU must support AVX; every array of `beams` holds at least `j + 4` values.
+#[target_feature(enable = "avx")]
+#[inline]
+pub(super) unsafe fn prepare4(gc: f64, gs: f64, beams: &BeamPtrs, j: usize) {
+    let (gc, gs) = (_mm256_set1_pd(gc), _mm256_set1_pd(gs));
+    let (zero, one) = (_mm256_setzero_pd(), _mm256_set1_pd(1.0));
+    // SAFETY: the CPU has AVX, and the arrays hold beams j..j + 4 (this function's
+    // contract).
+    unsafe {
+        let (c, s) = (
+            _mm256_loadu_pd(beams.bc.add(j)),
+            _mm256_loadu_pd(beams.bs.add(j)),
+        );
+        let x = _mm256_sub_pd(_mm256_mul_pd(gc, c), _mm256_mul_pd(gs, s));
+        let y = _mm256_add_pd(_mm256_mul_pd(gs, c), _mm256_mul_pd(gc, s));
+        // +-0.0 -> 0.0
+        let x = _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(x, zero), x);
+        let y = _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(y, zero), y);
+        _mm256_storeu_pd(beams.dx.add(j), x);
+        _mm256_storeu_pd(beams.dy.add(j), y);
+        _mm256_storeu_pd(beams.inv_dx.add(j), _mm256_div_pd(one, x));
+        _mm256_storeu_pd(beams.inv_dy.add(j), _mm256_div_pd(one, y));
+        let best = if beams.limit.is_null() {
+            _mm256_set1_pd(beams.start)
+        } else {
+            let limit = _mm256_loadu_pd(beams.limit.add(j));
+            _mm256_add_pd(_mm256_mul_pd(limit, _mm256_set1_pd(beams.inv_res)), one)
+        };
+        _mm256_storeu_pd(beams.best.add(j), best);
+    }
+}
+
 /// Relative: the roundings of a beam index in single precision (those of `1 / inc` and of
 /// the start, of the product and the sum, of the slack's sum or difference: five half
 /// ulps of the largest index at most) with room to spare, as a share of the largest index.

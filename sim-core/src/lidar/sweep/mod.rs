@@ -25,10 +25,12 @@
 mod avx;
 
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+use std::ops::Range;
 
 use super::metres;
 use crate::map::Map;
 use crate::map::faces::{BLOCK, MINUS_X, MINUS_Y, PLUS_X, PLUS_Y, WallFaces};
+use crate::rng::Rng;
 
 /// Cells: a crossing this near a run's end is left to the march (the rounding of either
 /// side's expressions is below 1e-12 cells on maps up to 2^24 cells across).
@@ -82,8 +84,10 @@ pub(super) struct Sweep {
     last: Vec<f64>,
     #[cfg(target_arch = "x86_64")]
     runs: avx::Runs,
-    /// The beams [`Sweep::run`] leaves to the march.
+    /// The beams [`Sweep::run`] leaves to the march, and their noise where it is drawn
+    /// alongside.
     pub marched: Vec<u32>,
+    pub marched_noise: Vec<f64>,
     /// Scans swept and beams left to the march since this thread's first (for tests, and
     /// `thread_scans_by_algorithm`).
     pub swept: u64,
@@ -172,15 +176,18 @@ struct Beams<'a> {
 }
 
 impl Beams<'_> {
-    /// Fills the beams' directions, their inverses and the first `best` (`start(j)` for
-    /// beam j).
+    /// Fills beam j's direction, its inverses and its first `best` (`start(j)`), for `j`
+    /// in `range`.
     #[inline(always)]
-    fn prepare(self, gc: f64, gs: f64, start: impl Fn(usize) -> f64) {
-        let n = self.best.len();
-        let (beam_cos, beam_sin) = (&self.beam_cos[..n], &self.beam_sin[..n]);
-        let (dxs, dys) = (&mut self.dx[..n], &mut self.dy[..n]);
-        let (inv_dx, inv_dy) = (&mut self.inv_dx[..n], &mut self.inv_dy[..n]);
-        for j in 0..n {
+    fn prepare(&mut self, gc: f64, gs: f64, start: &impl Fn(usize) -> f64, range: Range<usize>) {
+        let (beam_cos, beam_sin) = (&self.beam_cos[range.clone()], &self.beam_sin[range.clone()]);
+        let (dxs, dys) = (&mut self.dx[range.clone()], &mut self.dy[range.clone()]);
+        let (inv_dx, inv_dy) = (
+            &mut self.inv_dx[range.clone()],
+            &mut self.inv_dy[range.clone()],
+        );
+        let best = &mut self.best[range.clone()];
+        for j in 0..best.len() {
             let (bc, bs) = (beam_cos[j], beam_sin[j]);
             // As the march prepares them: -0.0 would give an inverse of -infinity.
             let dx = gc * bc - gs * bs;
@@ -191,10 +198,87 @@ impl Beams<'_> {
             dys[j] = dy;
             inv_dx[j] = 1.0 / dx;
             inv_dy[j] = 1.0 / dy;
-            self.best[j] = start(j);
+            best[j] = start(range.start + j);
         }
     }
+
+    /// [`Beams::prepare`] for every beam, with the scan's noise drawn alongside if asked
+    /// (`noise`: the generator, the standard deviation and where the values go).
+    /// `start(j)` is `limits`' `limit[j] * inv_res + 1.0` where given, else the same for
+    /// every beam.
+    #[inline(always)]
+    fn fill(
+        mut self,
+        gc: f64,
+        gs: f64,
+        start: impl Fn(usize) -> f64,
+        limits: Option<(&[f64], f64)>,
+        noise: Option<Noise<'_>>,
+    ) {
+        let n = self.best.len();
+        #[cfg(target_arch = "x86_64")]
+        if let Some((rng, std, values)) = noise {
+            // The draws wait on their generator's chain of integer operations, the set-up
+            // on its two divisions a beam: taken together, each runs in the other's
+            // shadow. `ALONGSIDE` beams per batch of draws, four at a time by
+            // `avx::prepare4` (the same bits).
+            let blocks = n / ALONGSIDE;
+            let beams = avx::BeamPtrs {
+                bc: self.beam_cos.as_ptr(),
+                bs: self.beam_sin.as_ptr(),
+                dx: self.dx.as_mut_ptr(),
+                dy: self.dy.as_mut_ptr(),
+                inv_dx: self.inv_dx.as_mut_ptr(),
+                inv_dy: self.inv_dy.as_mut_ptr(),
+                best: self.best.as_mut_ptr(),
+                limit: limits.map_or(std::ptr::null(), |(l, _)| l.as_ptr()),
+                inv_res: limits.map_or(0.0, |(_, r)| r),
+                start: start(0),
+            };
+            let mut blocks_done = 0;
+            let block = &mut blocks_done;
+            // (Inlined into the draws' loop, which is compiled for AVX2: a closure of its
+            // own would be compiled without the features of its caller.)
+            rng.normals_alongside(
+                values,
+                0.0,
+                std,
+                #[inline(always)]
+                move || {
+                    if *block < blocks {
+                        let j = *block * ALONGSIDE;
+                        // SAFETY: only called with AVX (see `Sweep::prepare`'s callers); beams
+                        // j..j + 8 lie within the n beams every array holds.
+                        unsafe {
+                            avx::prepare4(gc, gs, &beams, j);
+                            avx::prepare4(gc, gs, &beams, j + 4);
+                        }
+                        *block += 1;
+                    }
+                },
+            );
+            let done = blocks_done * ALONGSIDE;
+            self.prepare(gc, gs, &start, done..n);
+            return;
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = limits;
+            assert!(
+                noise.is_none(),
+                "the noise is drawn alongside with AVX only"
+            );
+        }
+        self.prepare(gc, gs, &start, 0..n);
+    }
 }
+
+/// Beams set up per batch of the noise's draws (see [`Beams::fill`]).
+const ALONGSIDE: usize = 8;
+
+/// The scan's noise as [`Sweep::prepare`] draws it: the generator, the standard deviation
+/// and the values, one per beam.
+pub(super) type Noise<'a> = (&'a mut Rng, f64, &'a mut [f64]);
 
 impl Sweep {
     /// Sizes the arrays for `n` beams (contents unspecified until filled). The arrays the
@@ -228,6 +312,9 @@ impl Sweep {
     /// The beams' directions in the grid frame (the beam's `cos` and `sin` relative to the
     /// heading turned by the heading's `gc`, `gs`, as the march computes them), and their
     /// limits in cells from `uniform` or `limit` (metres, set by the caller) and `inv_res`.
+    /// With `noise` (the generator, the standard deviation and one value per beam), the
+    /// scan's noise is drawn too, as [`crate::lidar::Lidar::add_noise`] draws it; the
+    /// caller then asks [`Sweep::run`] to add it.
     #[inline(always)]
     pub(super) fn prepare(
         &mut self,
@@ -236,6 +323,7 @@ impl Sweep {
         gc: f64,
         gs: f64,
         inv_res: f64,
+        noise: Option<Noise<'_>>,
     ) {
         let n = self.limit.len();
         self.inv_res = inv_res;
@@ -252,11 +340,17 @@ impl Sweep {
         match self.uniform {
             Some(limit) => {
                 let start = limit * inv_res + 1.0;
-                beams.prepare(gc, gs, |_| start);
+                beams.fill(gc, gs, |_| start, None, noise);
             }
             None => {
                 let limit = &self.limit[..n];
-                beams.prepare(gc, gs, |j| limit[j] * inv_res + 1.0);
+                beams.fill(
+                    gc,
+                    gs,
+                    |j| limit[j] * inv_res + 1.0,
+                    Some((limit, inv_res)),
+                    noise,
+                );
             }
         }
     }
@@ -276,7 +370,11 @@ impl Sweep {
     /// Sweeps `faces` (those of the map, see [`faces_for`]) from the grid point (gx, gy)
     /// for the beams `dx`, `dy` and their limits (see [`Sweep::prepare`]; `fan` says where they
     /// point): `out[i]` is the range in metres (cells times `res`, capped at the beam's
-    /// limit) for every beam not listed in `marched`: those the caller marches.
+    /// limit) for every beam not listed in `marched`: those the caller marches. If
+    /// `noisy`, `out` holds the scan's noise (see [`Sweep::prepare`]) and gets each range
+    /// added to it, and the noise of the beams listed in `marched` is kept in
+    /// `marched_noise` (in the same order).
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(super) fn run<const AVX: bool>(
         &mut self,
@@ -286,9 +384,11 @@ impl Sweep {
         res: f64,
         fan: &Fan,
         out: &mut [f64],
+        noisy: bool,
     ) {
         let n = self.limit.len();
         self.marched.clear();
+        self.marched_noise.clear();
         for g in 0..self.group_max.len() {
             self.group_max[g] = self.group_best::<AVX>(g);
         }
@@ -300,6 +400,17 @@ impl Sweep {
         self.serial += 1;
         self.flagged = false;
         self.sweep::<AVX>(faces, gx, gy, fan);
+        if self.flagged {
+            for (i, f) in self.flag[..n].iter_mut().enumerate() {
+                if *f != 0.0 {
+                    self.marched.push(i as u32);
+                    if noisy {
+                        self.marched_noise.push(out[i]);
+                    }
+                    *f = 0.0;
+                }
+            }
+        }
         let (best, inv_res) = (&self.best[..n], self.inv_res);
         // A crossing beyond the limit (in cells) is no hit.
         let range = |b: f64, limit: f64| {
@@ -310,24 +421,28 @@ impl Sweep {
             };
             metres(cells, res, limit)
         };
-        match self.uniform {
-            Some(limit) => {
+        match (self.uniform, noisy) {
+            (Some(limit), false) => {
                 for i in 0..n {
                     out[i] = range(best[i], limit);
                 }
             }
-            None => {
+            (None, false) => {
                 let limit = &self.limit[..n];
                 for i in 0..n {
                     out[i] = range(best[i], limit[i]);
                 }
             }
-        }
-        if self.flagged {
-            for (i, f) in self.flag[..n].iter_mut().enumerate() {
-                if *f != 0.0 {
-                    self.marched.push(i as u32);
-                    *f = 0.0;
+            // The noise after the range, as `Lidar::add_noise` adds it.
+            (Some(limit), true) => {
+                for i in 0..n {
+                    out[i] += range(best[i], limit);
+                }
+            }
+            (None, true) => {
+                let limit = &self.limit[..n];
+                for i in 0..n {
+                    out[i] += range(best[i], limit[i]);
                 }
             }
         }
