@@ -243,9 +243,23 @@ impl Rng {
 
     /// [`Rng::add_normal`] one draw at a time.
     fn add_normal_scalar(&mut self, out: &mut [f64], mean: f64, std: f64) {
+        self.normals_scalar::<true>(out, mean, std, &mut || {});
+    }
+
+    /// [`Rng::normals_avx2`] one draw at a time: `alongside` called before every eighth.
+    fn normals_scalar<const ADD: bool>(
+        &mut self,
+        out: &mut [f64],
+        mean: f64,
+        std: f64,
+        alongside: &mut impl FnMut(),
+    ) {
         let z = ziggurat();
-        for r in out {
-            *r += mean + std * self.normal_from(z);
+        for (k, r) in out.iter_mut().enumerate() {
+            if k % 8 == 0 {
+                alongside();
+            }
+            put::<ADD>(r, mean + std * self.normal_from(z));
         }
     }
 
@@ -268,13 +282,7 @@ impl Rng {
             unsafe { self.normals_avx2::<false>(out, mean, std, &mut alongside) };
             return;
         }
-        let z = ziggurat();
-        for (k, r) in out.iter_mut().enumerate() {
-            if k % 8 == 0 {
-                alongside();
-            }
-            *r = mean + std * self.normal_from(z);
-        }
+        self.normals_scalar::<false>(out, mean, std, &mut alongside);
     }
 
     /// [`Rng::add_normal`] (`ADD`) or [`Rng::normals_alongside`] (values set, not added)

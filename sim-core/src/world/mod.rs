@@ -405,38 +405,40 @@ impl World {
                     .map(|(_, o)| *o),
             );
             self.seen.extend_from_slice(&state.obstacles);
-            let noisy = self.config.lidar.noise_std > 0.0;
+            // The LIDAR places its origin `mount_offset` ahead of the pose itself; a car's
+            // mount replaces that: the origin at (x, y) in the car's frame, looking along
+            // `yaw` (the LIDAR adds its offset back).
             let mount = self.config.agents[i].params.laser_mount;
-            match mount {
-                // the LIDAR places its origin `mount_offset` ahead of the pose itself (and
-                // draws the noise during the scan: the same values as after it)
-                None if noisy => {
-                    let map = &self.circuit.map;
-                    self.lidar
-                        .scan_noisy(map, pose, &self.seen, out, &mut agent.noise);
-                }
-                None => self.lidar.scan(&self.circuit.map, pose, &self.seen, out),
+            let origin = match mount {
+                None => pose,
                 Some(m) => {
-                    // this car's mount replaces `mount_offset`: the origin at (x, y) in
-                    // the car's frame, looking along `yaw` (the LIDAR adds its offset back)
                     let (s, c) = libm::sincos(pose.theta);
                     let heading = pose.theta + m.yaw;
                     let (hs, hc) = libm::sincos(heading);
                     let off = self.config.lidar.mount_offset;
-                    let origin = Pose::new(
+                    Pose::new(
                         pose.x + m.x * c - m.y * s - off * hc,
                         pose.y + m.x * s + m.y * c - off * hs,
                         heading,
-                    );
-                    self.lidar.scan(&self.circuit.map, origin, &self.seen, out);
-                    if m.flipped {
-                        // upside down, the beams sweep clockwise
-                        out.reverse();
-                    }
+                    )
                 }
+            };
+            let map = &self.circuit.map;
+            // Upside down, the beams sweep clockwise: reversed, then their noise added.
+            let flipped = mount.is_some_and(|m| m.flipped);
+            let noisy = self.config.lidar.noise_std > 0.0;
+            if noisy && !flipped {
+                // the noise drawn during the scan: the same values as after it
+                self.lidar
+                    .scan_noisy(map, origin, &self.seen, out, &mut agent.noise);
+            } else {
+                self.lidar.scan(map, origin, &self.seen, out);
             }
-            if noisy && mount.is_some() {
-                self.lidar.add_noise(out, &mut agent.noise);
+            if flipped {
+                out.reverse();
+                if noisy {
+                    self.lidar.add_noise(out, &mut agent.noise);
+                }
             }
         }
     }

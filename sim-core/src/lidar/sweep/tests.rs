@@ -1,5 +1,6 @@
 //! The sweep's own parts: its angle bounds, culling maxima and run selection.
 
+use super::fan::atan2_fast;
 use super::*;
 use crate::geometry::wrap_angle;
 use std::f64::consts::TAU;
