@@ -77,7 +77,8 @@ def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
     script = elsewhere / "user.py"
     script.write_text(USER)
     env = {k: v for k, v in os.environ.items()
-           if k not in ("PADDOCK_BIN", "PADDOCK_MAPS", "CARGO_TARGET_DIR", "PYTHONPATH", "VIRTUAL_ENV")}
+           if k not in ("PADDOCK_BIN", "PADDOCK_MAPS", "PADDOCK_EMBED_LIB", "CARGO_TARGET_DIR",
+                        "PYTHONPATH", "VIRTUAL_ENV")}
     env["PATH"] = "/usr/bin:/bin"
     harbour = str(ROOT / "maps" / "harbour")
 
