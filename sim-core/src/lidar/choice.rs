@@ -9,8 +9,13 @@
 //! scenes (a vector env's consecutive scans are of different cars); the one with the
 //! lower total time, leaving out the `DROP` scans that took longest in all (a thread
 //! interrupted mid-scan), takes the scans after, until the next trial `PERIOD` scans
-//! later (so that a change of scene, more cars in view say, is seen). The timing only
-//! picks which of two bit-identical computations runs: results never depend on it.
+//! later (so that a change of scene, more cars in view say, is seen). A trial costs its
+//! scans' time by the slower algorithm, about 2 % of a thread's scan time where that is
+//! the march at three to four times the sweep's (AVX2 alone); so after a trial that the
+//! same algorithm won again by at least `DECISIVE` times the other's time, the next comes
+//! twice as many scans later, up to `LONGEST` (a trial that is closer, or won by the
+//! other algorithm, brings the period back to `PERIOD`). The timing only picks which of
+//! two bit-identical computations runs: results never depend on it.
 
 use super::ScanAlgorithm;
 
@@ -18,8 +23,13 @@ use super::ScanAlgorithm;
 pub(super) const TRIAL: usize = 16;
 /// The trial's scans left out of the comparison: those that took longest in all.
 const DROP: usize = 2;
-/// Scans from the start of one trial to the start of the next, per map.
+/// Scans from the start of one trial to the start of the next, per map, after the
+/// first trial and after a close one.
 pub(super) const PERIOD: u64 = 2048;
+/// The longest such period, after decisive trials won by the same algorithm.
+const LONGEST: u64 = 16 * PERIOD;
+/// How many times the winner's time the loser must take for a trial to be decisive.
+const DECISIVE: u64 = 2;
 /// Maps (with path and beam count) remembered per thread; the least recently scanned is
 /// forgotten first.
 const KEYS: usize = 8;
@@ -35,10 +45,14 @@ pub(super) struct Key {
 /// One map's trials.
 struct Entry {
     key: Key,
-    /// Scans of this key since it was first seen.
+    /// Scans of this key since the start of its current trial.
     scans: u64,
+    /// Scans from the start of this key's current trial to the start of the next.
+    period: u64,
     /// The algorithm outside trials: the sweep's result until the first trial ends.
     sweep: bool,
+    /// Whether a trial has ended (so that `sweep` is a trial's winner).
+    settled: bool,
     /// When this key was last scanned (the chooser's own tick).
     used: u64,
     /// The current trial's times in nanoseconds, `[march, sweep]` per scan.
@@ -109,8 +123,11 @@ impl Choice {
         };
         let entry = &mut self.entries[e];
         entry.used = self.tick;
-        let phase = (entry.scans % PERIOD) as usize;
+        let phase = entry.scans as usize;
         entry.scans += 1;
+        if entry.scans >= entry.period {
+            entry.scans = 0;
+        }
         if phase < TRIAL {
             self.scans += 1;
             Pick {
@@ -131,7 +148,19 @@ impl Choice {
         let entry = &mut self.entries[e];
         entry.times[phase] = [march, sweep];
         if phase == TRIAL - 1 {
-            entry.sweep = sweep_faster(&mut entry.times);
+            let [march, sweep] = totals(&mut entry.times);
+            let won = sweep <= march;
+            let (winner, loser) = if won { (sweep, march) } else { (march, sweep) };
+            let decisive = loser >= winner.saturating_mul(DECISIVE);
+            // A first trial has no earlier winner to agree with: the period grows from
+            // the second.
+            entry.period = if decisive && won == entry.sweep && entry.settled {
+                (entry.period * 2).min(LONGEST)
+            } else {
+                PERIOD
+            };
+            entry.sweep = won;
+            entry.settled = true;
         }
     }
 }
@@ -141,20 +170,22 @@ impl Entry {
         Entry {
             key,
             scans: 0,
+            period: PERIOD,
             sweep: true,
+            settled: false,
             used: 0,
             times: [[0; 2]; TRIAL],
         }
     }
 }
 
-/// Whether the sweep took no longer than the march over a trial's scans `[march, sweep]`,
+/// The march's and the sweep's total times over a trial's scans `[march, sweep]`,
 /// leaving out the [`DROP`] scans that took longest by both together (sorting them).
-fn sweep_faster(times: &mut [[u64; 2]; TRIAL]) -> bool {
+fn totals(times: &mut [[u64; 2]; TRIAL]) -> [u64; 2] {
     times.sort_unstable_by_key(|&[m, s]| m.saturating_add(s));
     let kept = &times[..TRIAL - DROP];
     let total = |k: usize| kept.iter().fold(0u64, |a, t| a.saturating_add(t[k]));
-    total(1) <= total(0)
+    [total(0), total(1)]
 }
 
 #[cfg(test)]
@@ -233,6 +264,44 @@ mod tests {
         assert_eq!(run(&mut c, k, 100, 20, 10), 0);
         // and the one after it
         assert_eq!(run(&mut c, k, PERIOD, 10, 20), PERIOD - TRIAL as u64);
+    }
+
+    /// The scans (counted from 0) at which the trials of `scans` scans of `k` start, each
+    /// trial scan taking `sweep_ns` by the sweep and `march_ns` by the march.
+    fn trial_starts(c: &mut Choice, k: Key, scans: u64, sweep_ns: u64, march_ns: u64) -> Vec<u64> {
+        let mut starts = Vec::new();
+        for i in 0..scans {
+            let p = c.pick(ScanAlgorithm::Auto, k);
+            if let Some(t) = p.trial {
+                if t.1 == 0 {
+                    starts.push(i);
+                }
+                c.timed(t, march_ns, sweep_ns);
+            }
+        }
+        starts
+    }
+
+    #[test]
+    fn trials_come_less_often_while_the_same_algorithm_wins_by_far() {
+        let (mut c, k) = (Choice::new(), key(3));
+        let p = PERIOD;
+        // the sweep four times as fast: after the first two trials the period doubles up
+        // to the longest
+        let starts = trial_starts(&mut c, k, 63 * p, 10, 40);
+        assert_eq!(starts, [0, p, 3 * p, 7 * p, 15 * p, 31 * p, 47 * p]);
+        assert_eq!(LONGEST, 16 * p);
+        // from 63 p (the trial due there) on: a close trial brings the period back
+        let starts = trial_starts(&mut c, k, 3 * p, 10, 15);
+        assert_eq!(starts, [0, p, 2 * p]);
+        // decisive trials again, from a period of p (the next due at 14 p)
+        let starts = trial_starts(&mut c, k, 7 * p, 10, 40);
+        assert_eq!(starts, [0, 2 * p, 6 * p]);
+        // the march as far ahead from here: the trial due then sees the change of winner,
+        // and the period starts again from p
+        let starts = trial_starts(&mut c, k, 11 * p, 40, 10);
+        assert_eq!(starts, [7 * p, 8 * p, 10 * p]);
+        assert!(!c.pick(ScanAlgorithm::Auto, k).sweep);
     }
 
     #[test]
