@@ -49,10 +49,9 @@ struct Entry {
     scans: u64,
     /// Scans from the start of this key's current trial to the start of the next.
     period: u64,
-    /// The algorithm outside trials: the sweep's result until the first trial ends.
-    sweep: bool,
-    /// Whether a trial has ended (so that `sweep` is a trial's winner).
-    settled: bool,
+    /// The last trial's winner (true: the sweep), which takes the scans outside trials;
+    /// `None` until the first trial ends (the sweep takes them).
+    winner: Option<bool>,
     /// When this key was last scanned (the chooser's own tick).
     used: u64,
     /// The current trial's times in nanoseconds, `[march, sweep]` per scan.
@@ -136,7 +135,7 @@ impl Choice {
             }
         } else {
             Pick {
-                sweep: entry.sweep,
+                sweep: entry.winner.unwrap_or(true),
                 trial: None,
             }
         }
@@ -154,13 +153,12 @@ impl Choice {
             let decisive = loser >= winner.saturating_mul(DECISIVE);
             // A first trial has no earlier winner to agree with: the period grows from
             // the second.
-            entry.period = if decisive && won == entry.sweep && entry.settled {
+            entry.period = if decisive && entry.winner == Some(won) {
                 (entry.period * 2).min(LONGEST)
             } else {
                 PERIOD
             };
-            entry.sweep = won;
-            entry.settled = true;
+            entry.winner = Some(won);
         }
     }
 }
@@ -171,8 +169,7 @@ impl Entry {
             key,
             scans: 0,
             period: PERIOD,
-            sweep: true,
-            settled: false,
+            winner: None,
             used: 0,
             times: [[0; 2]; TRIAL],
         }
