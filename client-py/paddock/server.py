@@ -108,13 +108,14 @@ class LocalServer:
     def __init__(self, threads: int = 0, binary: str | None = None,
                  start_timeout: float = 60.0, extra_args: list[str] | None = None,
                  transport: str = "auto") -> None:
+        # first: `__del__` stops the process, also of a server refused below
+        self.process: subprocess.Popen[bytes] | None = None
         _check_transport(transport)
         self.transport = transport
         self.binary = binary or find_paddock()
         self.threads = threads
         self.start_timeout = start_timeout
         self.extra_args = list(extra_args or [])
-        self.process: subprocess.Popen[bytes] | None = None
         self.endpoint = ""
         # a file, not a pipe: a chatty server must never block on a full pipe
         self._log = tempfile.TemporaryFile()

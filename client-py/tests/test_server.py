@@ -3,11 +3,13 @@ asked (or elsewhere), and a clear error for a transport that is not one."""
 
 from __future__ import annotations
 
+import gc
 import sys
 
 import pytest
 
-from paddock import LocalServer
+from paddock import LocalServer, errors
+from paddock import server as server_module
 from paddock.server import local_endpoint
 from paddock.transport import Connection
 
@@ -45,3 +47,21 @@ def test_an_unknown_transport_is_refused_by_name() -> None:
             LocalServer(transport=bad)
         with pytest.raises(ValueError, match="is not one of"):
             local_endpoint(bad)
+
+
+def test_a_server_refused_when_made_leaves_nothing_behind(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A refused transport, or no binary, ends `LocalServer(...)` before it has a process:
+    # collecting what was made must not print an error of its own to the user's stderr.
+    ignored: list[str] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: ignored.append(repr(u.exc_value)))
+    with pytest.raises(ValueError, match="is not one of"):
+        LocalServer(transport="udp")
+
+    def no_binary() -> str:
+        raise errors.ServerStartError("no `paddock` binary")
+
+    monkeypatch.setattr(server_module, "find_paddock", no_binary)
+    with pytest.raises(errors.ServerStartError, match="no `paddock` binary"):
+        LocalServer()
+    gc.collect()
+    assert ignored == []
