@@ -23,7 +23,7 @@ use paddock_sim::circuit::{Circuit, Circuits, DEFAULT_MAP};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{
-    Lidar, LidarConfig, ScanAlgorithm, ScanPath, cpu_features, thread_scans_by_algorithm,
+    Lidar, LidarConfig, ScanAlgorithm, ScanPath, cpu_features, cpu_model, thread_scans_by_algorithm,
 };
 use paddock_sim::world::{Action, PackedObservations, Starts, World, WorldConfig, Worlds};
 use serde::Serialize;
@@ -106,6 +106,8 @@ struct PerfReport {
     /// The share of the stepping measurement's scans the sweep computed (the rest the
     /// march): 1 or 0 when forced, measured under `auto`.
     scan_sweep_share: Option<f64>,
+    /// The CPU as it names itself: brand, vendor, family and model.
+    cpu: String,
     /// The CPU's SIMD features, space-separated.
     cpu_features: String,
     agents: usize,
@@ -373,6 +375,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         scan_clearance_loads: path.clearance_loads().to_string(),
         scan_algorithm: algorithm,
         scan_sweep_share: sweep_share,
+        cpu: cpu_model(),
         cpu_features: cpu_features(),
         agents: args.agents,
         worlds: args.worlds,
@@ -393,6 +396,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         report.agents,
         report.worlds
     );
+    outln!("  CPU {}", report.cpu);
     outln!(
         "  LIDAR path {}, clearances by {}, {} (CPU features: {})",
         report.scan_path,

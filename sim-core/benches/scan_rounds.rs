@@ -20,7 +20,7 @@ use std::time::Instant;
 use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::geometry::Pose;
-use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features};
+use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features, cpu_model};
 use paddock_sim::map::Map;
 use paddock_sim::rng::Rng;
 use paddock_sim::track::Track;
@@ -201,7 +201,8 @@ fn main() {
     }
     cases.retain(|c| c.name.contains(&filter));
     println!(
-        "CPU features: {}; {rounds} rounds of about {round_ms} ms per configuration",
+        "CPU {}, features: {}; {rounds} rounds of about {round_ms} ms per configuration",
+        cpu_model(),
         cpu_features()
     );
     for round in 0..=rounds {

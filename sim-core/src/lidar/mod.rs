@@ -30,7 +30,7 @@ mod path;
 mod reference;
 mod sweep;
 
-pub use path::{ScanPath, ScanPathError, cpu_features};
+pub use path::{ScanPath, ScanPathError, cpu_features, cpu_model};
 
 use serde::{Deserialize, Serialize};
 

@@ -124,3 +124,72 @@ pub fn cpu_features() -> String {
     }
     "none detected".to_string()
 }
+
+/// This CPU as it names itself, so that a figure says where it was measured: on x86-64
+/// its brand string, vendor, family and model as CPUID gives them (for example `AMD EPYC
+/// (AuthenticAMD, family 25 model 1)`; a virtual machine's brand string is often
+/// shortened, the family and model are the host's); elsewhere the architecture.
+pub fn cpu_model() -> String {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::__cpuid;
+        let text = |regs: &[u32]| {
+            let bytes: Vec<u8> = regs.iter().flat_map(|r| r.to_le_bytes()).collect();
+            let text = String::from_utf8_lossy(&bytes).replace('\0', " ");
+            text.split_whitespace().collect::<Vec<_>>().join(" ")
+        };
+        let leaf0 = __cpuid(0);
+        let vendor = text(&[leaf0.ebx, leaf0.edx, leaf0.ecx]);
+        let sig = __cpuid(1).eax;
+        let (base_family, base_model) = ((sig >> 8) & 0xf, (sig >> 4) & 0xf);
+        let family = if base_family == 0xf {
+            base_family + ((sig >> 20) & 0xff)
+        } else {
+            base_family
+        };
+        let model = if base_family == 0x6 || base_family == 0xf {
+            ((sig >> 16) & 0xf) << 4 | base_model
+        } else {
+            base_model
+        };
+        let brand = if __cpuid(0x8000_0000).eax >= 0x8000_0004 {
+            let regs: Vec<u32> = (0x8000_0002..=0x8000_0004)
+                .flat_map(|leaf| {
+                    let r = __cpuid(leaf);
+                    [r.eax, r.ebx, r.ecx, r.edx]
+                })
+                .collect();
+            text(&regs)
+        } else {
+            String::new()
+        };
+        let brand = if brand.is_empty() { "x86-64" } else { &brand };
+        format!("{brand} ({vendor}, family {family} model {model})")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        std::env::consts::ARCH.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cpu_names_itself() {
+        let model = cpu_model();
+        assert!(!model.trim().is_empty());
+        assert!(!model.contains('\0'), "{model:?}");
+        #[cfg(target_arch = "x86_64")]
+        {
+            // "<brand> (<vendor>, family F model M)", F and M numbers
+            let (_, inner) = model.rsplit_once(" (").expect(&model);
+            let (_, numbers) = inner.split_once(", family ").expect(&model);
+            let (family, rest) = numbers.split_once(" model ").expect(&model);
+            let model_no = rest.strip_suffix(')').expect(&model);
+            assert!(family.parse::<u32>().is_ok_and(|f| f >= 5), "{model}");
+            assert!(model_no.parse::<u32>().is_ok(), "{model}");
+        }
+    }
+}
