@@ -205,6 +205,8 @@ impl Worker {
                 worker = %self.worker_id,
                 capacity = self.capacity,
                 broker = %self.cfg.connect,
+                cpu = %paddock_sim::lidar::cpu_model(),
+                scan_path = %paddock_sim::lidar::ScanPath::best(),
                 "connected"
             );
             let mut live = Liveness::new(self.cfg.heartbeat, self.cfg.liveness, Instant::now());
