@@ -396,9 +396,9 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         report.agents,
         report.worlds
     );
-    outln!("  CPU {}", report.cpu);
+    outln!("  CPU {}, features: {}", report.cpu, report.cpu_features);
     outln!(
-        "  LIDAR path {}, clearances by {}, {} (CPU features: {})",
+        "  LIDAR path {}, clearances by {}, {}",
         report.scan_path,
         report.scan_clearance_loads,
         match (report.scan_algorithm, report.scan_sweep_share) {
@@ -409,8 +409,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
                 100.0 * share
             ),
             (ScanAlgorithm::Auto, None) => "auto".to_string(),
-        },
-        report.cpu_features
+        }
     );
     if let Some(r) = report.agent_steps_per_s_scan {
         outln!("  agent-steps/s with 1080-beam scan: {r:>14.0}");
