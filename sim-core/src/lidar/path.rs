@@ -125,6 +125,19 @@ pub fn cpu_features() -> String {
     "none detected".to_string()
 }
 
+/// The vendor string of CPUID leaf 0 (`GenuineIntel`, `AuthenticAMD`, ...).
+#[cfg(target_arch = "x86_64")]
+pub(in crate::lidar) fn cpu_vendor() -> String {
+    let id = std::arch::x86_64::__cpuid(0);
+    let bytes: Vec<u8> = [id.ebx, id.edx, id.ecx]
+        .iter()
+        .flat_map(|r| r.to_le_bytes())
+        .collect();
+    String::from_utf8_lossy(&bytes)
+        .trim_matches('\0')
+        .to_string()
+}
+
 /// This CPU as it names itself, so that a figure says where it was measured: on x86-64
 /// its brand string, vendor, family and model as CPUID gives them (for example `AMD EPYC
 /// (AuthenticAMD, family 25 model 1)`; a virtual machine's brand string is often
@@ -138,8 +151,7 @@ pub fn cpu_model() -> String {
             let text = String::from_utf8_lossy(&bytes).replace('\0', " ");
             text.split_whitespace().collect::<Vec<_>>().join(" ")
         };
-        let leaf0 = __cpuid(0);
-        let vendor = text(&[leaf0.ebx, leaf0.edx, leaf0.ecx]);
+        let vendor = cpu_vendor();
         let sig = __cpuid(1).eax;
         let (base_family, base_model) = ((sig >> 8) & 0xf, (sig >> 4) & 0xf);
         let family = if base_family == 0xf {

@@ -74,10 +74,7 @@ pub(super) fn avx512_usable(map: &Map) -> bool {
 pub(in crate::lidar) fn avx_gather_pays() -> bool {
     static PAYS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *PAYS.get_or_init(|| {
-        // The vendor string of CPUID leaf 0: "GenuineIntel".
-        let id = std::arch::x86_64::__cpuid(0);
-        let intel = (id.ebx, id.edx, id.ecx) == (0x756e_6547, 0x4965_6e69, 0x6c65_746e);
-        intel && std::arch::is_x86_feature_detected!("avx2")
+        super::path::cpu_vendor() == "GenuineIntel" && std::arch::is_x86_feature_detected!("avx2")
     })
 }
 
