@@ -101,6 +101,9 @@ struct PerfReport {
     scan_path: String,
     /// How that path reads the clearance table here (`gather` or `scalar loads`).
     scan_clearance_loads: String,
+    /// The vectors of the angular sweep's per-beam loops on that path here (`256-bit`,
+    /// `512-bit` or `none`).
+    scan_sweep_vectors: String,
     /// `auto`, `march` or `sweep`.
     scan_algorithm: ScanAlgorithm,
     /// The share of the stepping measurement's scans the sweep computed (the rest the
@@ -373,6 +376,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         map_resolution: circuit.map.resolution(),
         scan_path: path.name().to_string(),
         scan_clearance_loads: path.clearance_loads().to_string(),
+        scan_sweep_vectors: path.sweep_vectors().to_string(),
         scan_algorithm: algorithm,
         scan_sweep_share: sweep_share,
         cpu: cpu_model(),
@@ -398,9 +402,13 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
     );
     outln!("  CPU {}, features: {}", report.cpu, report.cpu_features);
     outln!(
-        "  LIDAR path {}, clearances by {}, {}",
+        "  LIDAR path {}, clearances by {}, {}, {}",
         report.scan_path,
         report.scan_clearance_loads,
+        match report.scan_sweep_vectors.as_str() {
+            "none" => "sweep without SIMD".to_string(),
+            v => format!("sweep in {v} vectors"),
+        },
         match (report.scan_algorithm, report.scan_sweep_share) {
             (ScanAlgorithm::March, _) => "march".to_string(),
             (ScanAlgorithm::Sweep, _) => "angular sweep".to_string(),

@@ -19,7 +19,13 @@ fn perf_json_has_the_documented_keys() {
         assert!(v[k].as_f64().unwrap() > 0.0, "{k} in {out}");
     }
     // where it was measured: the CPU by name, its features, the path and the map
-    for k in ["cpu", "cpu_features", "scan_path", "map"] {
+    for k in [
+        "cpu",
+        "cpu_features",
+        "scan_path",
+        "scan_sweep_vectors",
+        "map",
+    ] {
         assert!(v[k].as_str().is_some_and(|s| !s.is_empty()), "{k} in {out}");
     }
     let (ok, out, err) = paddock(&["perf", "--json", "--seconds", "0.2", "--no-scan"]);

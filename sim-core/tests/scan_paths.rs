@@ -271,6 +271,14 @@ fn forcing_a_path_is_checked_and_reported() {
         // only the `avx` path may gather its clearances
         let loads = path.clearance_loads();
         assert!(loads == "scalar loads" || (loads == "gather" && path == ScanPath::Avx));
+        // the sweep's loops: none on the portable path, 256-bit on `avx`, either on
+        // `avx512`
+        let vectors = path.sweep_vectors();
+        match path {
+            ScanPath::Portable => assert_eq!(vectors, "none"),
+            ScanPath::Avx => assert_eq!(vectors, "256-bit"),
+            ScanPath::Avx512 => assert!(vectors == "256-bit" || vectors == "512-bit"),
+        }
         match lidar.clone().with_path(path) {
             Ok(forced) => {
                 assert!(path.supported());

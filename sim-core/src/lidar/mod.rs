@@ -365,6 +365,14 @@ impl Lidar {
         #[cfg(target_arch = "x86_64")]
         {
             if path >= ScanPath::Avx512 && march::avx512_usable(map) {
+                if job.sweep && path::sweep_in_256_bits() {
+                    // The sweep compiled for AVX, its march (of the beams it leaves, or of
+                    // every beam where it does not apply) still AVX-512's.
+                    // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F, so
+                    // AVX.
+                    unsafe { self.scan_avx(map, job, out, path.level(), noise) };
+                    return;
+                }
                 // SAFETY: `avx512_usable` checked that the CPU supports AVX-512F and AVX2.
                 unsafe { self.scan_avx512(map, job, out, noise) };
                 return;
@@ -397,7 +405,9 @@ impl Lidar {
     }
 
     /// [`Lidar::scan_chunks`] compiled with AVX-512 enabled (the march itself picks its
-    /// AVX-512 version either way; this widens the per-beam loops around it).
+    /// AVX-512 version either way; this widens the per-beam loops around it). On Intel
+    /// CPUs the sweep's scans go to [`Lidar::scan_avx`] instead (see
+    /// `path::sweep_in_256_bits`).
     ///
     /// # Safety
     /// The CPU must support AVX-512F and AVX2.

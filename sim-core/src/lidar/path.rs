@@ -86,6 +86,20 @@ impl ScanPath {
         "scalar loads"
     }
 
+    /// The vectors of the angular sweep's per-beam loops on this path here: `256-bit` on
+    /// `avx`, and on `avx512` where the CPU is Intel's (see [`sweep_in_256_bits`]),
+    /// `512-bit` on `avx512` elsewhere, `none` on the portable path. The crossings
+    /// themselves are 256-bit kernels on both SIMD paths, and every way gives the same
+    /// bits; only the speed differs.
+    pub fn sweep_vectors(self) -> &'static str {
+        match self {
+            ScanPath::Portable => "none",
+            ScanPath::Avx => "256-bit",
+            ScanPath::Avx512 if sweep_in_256_bits() => "256-bit",
+            ScanPath::Avx512 => "512-bit",
+        }
+    }
+
     /// The SIMD level the march takes (0 portable, 1 AVX, 2 AVX-512).
     pub(super) fn level(self) -> u8 {
         match self {
@@ -123,6 +137,33 @@ pub fn cpu_features() -> String {
         }
     }
     "none detected".to_string()
+}
+
+/// Whether the `avx512` path runs the angular sweep compiled for AVX (256-bit vectors)
+/// rather than for AVX-512: on Intel CPUs, where code compiled for AVX-512 runs the
+/// sweep's per-beam loops in 512-bit vectors, whose frequency licence costs more than they
+/// save there (one car's step 11-13 % faster in 256-bit vectors on an Intel Xeon, family 6
+/// model 167; 3-8 % slower on an AMD Zen 4, whose 512-bit operations cost no licence:
+/// docs/performance-scan.md). The march keeps its AVX-512 kernels either way.
+pub(in crate::lidar) fn sweep_in_256_bits() -> bool {
+    #[cfg(test)]
+    if let Some(forced) = SWEEP_IN_256_BITS.get() {
+        return forced;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        static INTEL: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        *INTEL.get_or_init(|| cpu_vendor() == "GenuineIntel")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Tests: [`sweep_in_256_bits`]'s answer on this thread, where set.
+    pub(in crate::lidar) static SWEEP_IN_256_BITS: std::cell::Cell<Option<bool>> =
+        const { std::cell::Cell::new(None) };
 }
 
 /// The vendor string of CPUID leaf 0 (`GenuineIntel`, `AuthenticAMD`, ...).
