@@ -207,6 +207,7 @@ impl Worker {
                 broker = %self.cfg.connect,
                 cpu = %paddock_sim::lidar::cpu_model(),
                 scan_path = %paddock_sim::lidar::ScanPath::best(),
+                sweep_vectors = paddock_sim::lidar::ScanPath::best().sweep_vectors(),
                 "connected"
             );
             let mut live = Liveness::new(self.cfg.heartbeat, self.cfg.liveness, Instant::now());
