@@ -7,7 +7,7 @@
 //! raceline file), so a centerline-only track works the same way; the raceline's own
 //! speed profile is used where there is one.
 
-use paddock_sim::geometry::wrap_angle;
+use paddock_sim::geometry::{wrap_angle, wrap_length};
 use paddock_sim::track::Track;
 
 /// Speed profile used when the track has no raceline: lateral acceleration, braking and
@@ -168,7 +168,7 @@ impl RefPath {
 
     fn segment(&self, s: f64) -> (usize, f64) {
         let n = self.xs.len();
-        let s = s.rem_euclid(self.length());
+        let s = wrap_length(s, self.length());
         let i = match self.cum.binary_search_by(|v| v.total_cmp(&s)) {
             Ok(i) => i.min(n - 1),
             Err(i) => i - 1,
@@ -230,10 +230,10 @@ impl RefPath {
         let total = self.length();
         let mut j = i;
         for _ in 0..n {
-            if (self.cum[j] - self.cum[i]).rem_euclid(total) >= dist {
+            if wrap_length(self.cum[j] - self.cum[i], total) >= dist {
                 break;
             }
-            j = (j + 1) % n;
+            j = if j + 1 == n { 0 } else { j + 1 };
         }
         j
     }
@@ -245,8 +245,8 @@ impl RefPath {
         let local = hint.filter(|&h| h < n).and_then(|h| {
             let mut best = h;
             loop {
-                let next = (best + 1) % n;
-                let prev = (best + n - 1) % n;
+                let next = if best + 1 == n { 0 } else { best + 1 };
+                let prev = if best == 0 { n - 1 } else { best - 1 };
                 if self.d2(next, x, y) < self.d2(best, x, y) {
                     best = next;
                 } else if self.d2(prev, x, y) < self.d2(best, x, y) {
@@ -292,7 +292,7 @@ impl RefPath {
             }
         }
         let (_, s, d) = best.unwrap_or((0.0, self.cum[i], 0.0));
-        let s = s.rem_euclid(self.length());
+        let s = wrap_length(s, self.length());
         Frenet {
             s,
             d,

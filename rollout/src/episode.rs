@@ -4,7 +4,9 @@ use std::sync::Arc;
 
 use paddock_policy::{build_driver, check_lidar};
 use paddock_sim::circuit::{Circuit, Circuits};
-use paddock_sim::world::{Action, AgentConfig, AgentStatus, Starts, World, WorldConfig};
+use paddock_sim::world::{
+    Action, AgentConfig, AgentStatus, Starts, StepEvents, World, WorldConfig,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::{RolloutError, Scenario, StartSpec};
@@ -140,6 +142,8 @@ pub fn run_episode(
         agents: vec![AgentTrace::default(); n],
     });
     let mut actions = vec![Action::default(); n];
+    // One buffer for every step's events (`World::step` would allocate them each step).
+    let mut events = StepEvents::default();
     let mut ever_collided: Vec<bool> = world.observation()?.collisions.clone();
     let mut steps = 0u64;
     // when a car's driver faulted (Driver::fault): it is stopped and its episode ends as
@@ -178,7 +182,7 @@ pub fn run_episode(
                 Action::default()
             };
         }
-        let events = world.step(&actions)?;
+        world.step_into(&actions, &mut events)?;
         for (c, e) in ever_collided.iter_mut().zip(&events.collided) {
             *c |= *e;
         }

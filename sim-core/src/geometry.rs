@@ -75,9 +75,62 @@ pub fn wrap_angle(a: f64) -> f64 {
     if w >= PI { w - TAU } else { w }
 }
 
+/// `s.rem_euclid(length)` (for `length > 0`), the same bits, without the division of
+/// `f64::rem_euclid` for the values a loop's arc lengths mostly take: `s` in
+/// (-length, 2 length), where the remainder is `s`, `s - length` (exact) or `s + length`
+/// (as `rem_euclid` rounds it; at `-length` itself `rem_euclid` gives -0). Other values,
+/// NaN and infinities take `rem_euclid`.
+#[inline]
+pub fn wrap_length(s: f64, length: f64) -> f64 {
+    if (0.0..length).contains(&s) {
+        s
+    } else if s >= length && s < 2.0 * length {
+        s - length
+    } else if s < 0.0 && s > -length {
+        s + length
+    } else {
+        s.rem_euclid(length)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wrap_length_is_rem_euclid_bit_for_bit() {
+        let mut rng = crate::rng::Rng::new(5);
+        for &l in &[1.0, 0.1, 3.0, 87.654_321, 1234.5, 1e-300, f64::MAX / 4.0] {
+            let mut values = vec![
+                0.0,
+                -0.0,
+                l,
+                -l,
+                2.0 * l,
+                -2.0 * l,
+                l.next_down(),
+                l.next_up(),
+                (2.0 * l).next_down(),
+                (-l).next_up(),
+                (-l).next_down(),
+                f64::MIN_POSITIVE,
+                -f64::MIN_POSITIVE,
+                f64::NAN,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            ];
+            for _ in 0..20_000 {
+                values.push(rng.uniform_range(-3.0, 3.0) * l);
+            }
+            for s in values {
+                let (got, want) = (wrap_length(s, l), s.rem_euclid(l));
+                assert!(
+                    got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                    "{s} mod {l}: {got} vs {want}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn corners_of_rotated_box() {

@@ -212,7 +212,7 @@ impl Track {
 
     /// Position, heading and widths at arc length `s` (wrapped into the loop).
     pub fn at(&self, s: f64) -> (Pose, f64, f64) {
-        let s = s.rem_euclid(self.length);
+        let s = crate::geometry::wrap_length(s, self.length);
         let i = match self.cum_s.binary_search_by(|v| v.total_cmp(&s)) {
             Ok(i) => i.min(self.points.len() - 1),
             Err(i) => i - 1,
@@ -307,11 +307,15 @@ impl Track {
         if n <= 2 * LOCAL_WINDOW + 1 {
             return self.project(x, y);
         }
-        let first = (hint + n - LOCAL_WINDOW) % n;
-        let best = self.nearest_segment((0..=2 * LOCAL_WINDOW).map(|k| (first + k) % n), x, y);
+        // (Indices wrapped by a comparison: a remainder is an integer division, and this
+        // runs every step of every car.)
+        let wrap = |i: usize| if i >= n { i - n } else { i };
+        let hint = if hint < n { hint } else { hint % n };
+        let first = wrap(hint + n - LOCAL_WINDOW);
+        let best = self.nearest_segment((0..=2 * LOCAL_WINDOW).map(|k| wrap(first + k)), x, y);
         // Accept the local answer only if it lies strictly inside the window; otherwise
         // the car may have moved on (or jumped) and the global search decides.
-        let offset = (best.1 + n - first) % n;
+        let offset = wrap(best.1 + n - first);
         if offset == 0 || offset == 2 * LOCAL_WINDOW || self.beyond_grid(best.0) {
             return self.project(x, y);
         }
