@@ -101,6 +101,55 @@ pub struct Track {
     raceline: Option<Vec<RacelinePoint>>,
     /// Coarse spatial hash of segments for global projection.
     grid: SegmentGrid,
+    /// The segments again for the local search (see [`Window`]).
+    window: Window,
+}
+
+/// Each segment's start, unit direction and length as arrays, segment `j mod n` at `j`
+/// for `j < n + 2 LOCAL_WINDOW`: a local search's window of segments is one run of
+/// consecutive entries, wrapping or not, which the compiler can step through in vectors.
+#[derive(Debug, Clone)]
+struct Window {
+    ax: Vec<f64>,
+    ay: Vec<f64>,
+    dx: Vec<f64>,
+    dy: Vec<f64>,
+    len: Vec<f64>,
+}
+
+impl Window {
+    fn new(points: &[CenterPoint], dirs: &[(f64, f64)], lens: &[f64]) -> Window {
+        let idx = (0..points.len() + 2 * LOCAL_WINDOW).map(|j| j % points.len());
+        Window {
+            ax: idx.clone().map(|i| points[i].x).collect(),
+            ay: idx.clone().map(|i| points[i].y).collect(),
+            dx: idx.clone().map(|i| dirs[i].0).collect(),
+            dy: idx.clone().map(|i| dirs[i].1).collect(),
+            len: idx.map(|i| lens[i]).collect(),
+        }
+    }
+
+    /// The squared distances from (x, y) to segments `first..first + 2 LOCAL_WINDOW + 1`
+    /// (`first < n`), each as [`Track::project_on_segment`] computes it (the same
+    /// operations, so the same bits).
+    #[inline]
+    fn distances(&self, first: usize, x: f64, y: f64) -> [f64; 2 * LOCAL_WINDOW + 1] {
+        const W: usize = 2 * LOCAL_WINDOW + 1;
+        let r = first..first + W;
+        let (ax, ay) = (&self.ax[r.clone()], &self.ay[r.clone()]);
+        let (dx, dy, len) = (&self.dx[r.clone()], &self.dy[r.clone()], &self.len[r]);
+        let mut d2 = [0.0; W];
+        for k in 0..W {
+            let (rx, ry) = (x - ax[k], y - ay[k]);
+            let t = rx * dx[k] + ry * dy[k];
+            // `f64::clamp(0.0, len)`, NaN kept, as a select
+            let t = if t < 0.0 { 0.0 } else { t };
+            let t = if t > len[k] { len[k] } else { t };
+            let (px, py) = (ax[k] + t * dx[k], ay[k] + t * dy[k]);
+            d2[k] = (x - px) * (x - px) + (y - py) * (y - py);
+        }
+        d2
+    }
 }
 
 /// How far (in segments) a local projection search looks around its hint.
@@ -173,6 +222,7 @@ impl Track {
             }
         }
         let grid = SegmentGrid::build(&points);
+        let window = Window::new(&points, &seg_dir, &seg_len);
         Ok(Self {
             points,
             cum_s,
@@ -181,6 +231,7 @@ impl Track {
             length: s,
             raceline,
             grid,
+            window,
         })
     }
 
@@ -312,7 +363,22 @@ impl Track {
         let wrap = |i: usize| if i >= n { i - n } else { i };
         let hint = if hint < n { hint } else { hint % n };
         let first = wrap(hint + n - LOCAL_WINDOW);
-        let best = self.nearest_segment((0..=2 * LOCAL_WINDOW).map(|k| wrap(first + k)), x, y);
+        // `nearest_segment` over the window: the distances all at once, then the least
+        // in the same order with the same ties, then the winner's projection.
+        let mut best = (f64::INFINITY, 0usize);
+        for (k, d2) in self.window.distances(first, x, y).into_iter().enumerate() {
+            let i = wrap(first + k);
+            if d2 < best.0 || (d2 == best.0 && i < best.1) {
+                best = (d2, i);
+            }
+        }
+        let best = if best.0 == f64::INFINITY && best.1 == 0 {
+            // nothing nearer than infinity (NaN coordinates): as `nearest_segment` leaves it
+            (f64::INFINITY, 0, 0.0, 0.0)
+        } else {
+            let (d2, t, lat) = self.project_on_segment(best.1, x, y);
+            (d2, best.1, t, lat)
+        };
         // Accept the local answer only if it lies strictly inside the window; otherwise
         // the car may have moved on (or jumped) and the global search decides.
         let offset = wrap(best.1 + n - first);
@@ -359,6 +425,63 @@ pub(crate) mod tests {
         assert!((p.s - t.length() / 4.0).abs() < 0.01, "{p:?}");
         assert!(p.lateral < 0.0, "outside a CCW loop is to the right");
         assert_eq!(t.project_near(0.0, 10.5, p.segment), p);
+    }
+
+    /// `project_near` as it searched its window before the window's distances were
+    /// taken all at once: the reference the test below holds it to, bit for bit.
+    fn project_near_by_segments(t: &Track, x: f64, y: f64, hint: usize) -> Projection {
+        let n = t.points.len();
+        let first = (hint + n - LOCAL_WINDOW) % n;
+        let best = t.nearest_segment((0..=2 * LOCAL_WINDOW).map(|k| (first + k) % n), x, y);
+        let offset = (best.1 + n - first) % n;
+        if offset == 0 || offset == 2 * LOCAL_WINDOW || t.beyond_grid(best.0) {
+            return t.project(x, y);
+        }
+        t.projection_from(best.1, best.2, best.3)
+    }
+
+    #[test]
+    fn the_local_search_gives_the_bits_of_the_segment_by_segment_one() {
+        let mut rng = crate::rng::Rng::new(17);
+        let bits = |p: &Projection| (p.s.to_bits(), p.segment, p.lateral.to_bits());
+        for trial in 0..40 {
+            // Circles and wobbly loops of 14 to 300 points, some with repeated points.
+            let n = 14 + rng.below(287) as usize;
+            let r = rng.uniform_range(2.0, 50.0);
+            let wobble = if trial % 2 == 0 { 0.0 } else { 0.3 * r };
+            let mut pts: Vec<CenterPoint> = (0..n)
+                .map(|i| {
+                    let a = std::f64::consts::TAU * i as f64 / n as f64;
+                    let rr = r + wobble * (3.0 * a).sin();
+                    CenterPoint {
+                        x: rr * a.cos(),
+                        y: rr * a.sin(),
+                        w_right: 1.0,
+                        w_left: 1.0,
+                    }
+                })
+                .collect();
+            if trial % 4 == 1 {
+                pts[n / 2] = pts[n / 2 - 1];
+            }
+            let t = Track::new(pts, None).unwrap();
+            let n = t.points.len();
+            for _ in 0..500 {
+                let a = rng.uniform_range(0.0, std::f64::consts::TAU);
+                let rr = r * rng.uniform_range(0.5, 1.6);
+                let (x, y) = (rr * a.cos(), rr * a.sin());
+                // Hints near the answer, anywhere, and past the segment count.
+                let near = t.project(x, y).segment + rng.below(5) as usize;
+                for hint in [near % n, rng.below(n as u64) as usize, near + n] {
+                    let want = project_near_by_segments(&t, x, y, hint % n);
+                    assert_eq!(
+                        bits(&t.project_near(x, y, hint)),
+                        bits(&want),
+                        "trial {trial}, ({x}, {y}), hint {hint} of {n}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
