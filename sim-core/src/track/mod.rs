@@ -402,18 +402,23 @@ pub(crate) mod tests {
 
     /// A circle of radius r sampled at n points, counter-clockwise.
     pub(crate) fn circle(r: f64, n: usize) -> Track {
-        let pts = (0..n)
+        Track::new(loop_points(r, n, 0.0), None).unwrap()
+    }
+
+    /// n points counter-clockwise on the loop of radius `r + wobble sin(3 a)` at angle a.
+    fn loop_points(r: f64, n: usize, wobble: f64) -> Vec<CenterPoint> {
+        (0..n)
             .map(|i| {
                 let a = std::f64::consts::TAU * i as f64 / n as f64;
+                let rr = r + wobble * (3.0 * a).sin();
                 CenterPoint {
-                    x: r * a.cos(),
-                    y: r * a.sin(),
+                    x: rr * a.cos(),
+                    y: rr * a.sin(),
                     w_right: 1.0,
                     w_left: 1.0,
                 }
             })
-            .collect();
-        Track::new(pts, None).unwrap()
+            .collect()
     }
 
     #[test]
@@ -449,18 +454,7 @@ pub(crate) mod tests {
             let n = 14 + rng.below(287) as usize;
             let r = rng.uniform_range(2.0, 50.0);
             let wobble = if trial % 2 == 0 { 0.0 } else { 0.3 * r };
-            let mut pts: Vec<CenterPoint> = (0..n)
-                .map(|i| {
-                    let a = std::f64::consts::TAU * i as f64 / n as f64;
-                    let rr = r + wobble * (3.0 * a).sin();
-                    CenterPoint {
-                        x: rr * a.cos(),
-                        y: rr * a.sin(),
-                        w_right: 1.0,
-                        w_left: 1.0,
-                    }
-                })
-                .collect();
+            let mut pts = loop_points(r, n, wobble);
             if trial % 4 == 1 {
                 pts[n / 2] = pts[n / 2 - 1];
             }
