@@ -62,6 +62,29 @@ pub fn obb_hits_map(obb: &Obb, map: &Map) -> bool {
     if map.clearance(obb.cx, obb.cy) > obb.circumradius() {
         return false;
     }
+    // Then by two smaller discs, one around each half of the box (a car beside a wall,
+    // which the disc around the whole box reaches): each clear of every occupied cell by
+    // `DISC_MARGIN`, far beyond the roundings of the centres, of `clearance` and of the
+    // cell-by-cell test, which would find every cell apart from the box too; so the
+    // answer is the same, without that test's trigonometry and cells.
+    let (c, s) = obb.axis_u();
+    let half = 0.5 * obb.half_length;
+    let (ox, oy) = (half * c, half * s);
+    let r = libm::hypot(half, obb.half_width) + DISC_MARGIN;
+    if map.clearance(obb.cx + ox, obb.cy + oy) > r && map.clearance(obb.cx - ox, obb.cy - oy) > r {
+        return false;
+    }
+    hits_cell_by_cell(obb, map)
+}
+
+/// Metres: how far from every occupied cell [`obb_hits_map`]'s two discs must be to
+/// answer for the box (a hundred-thousandth of a 5 cm cell at least, against roundings of
+/// about 1e-12 m on maps of a few hundred metres).
+const DISC_MARGIN: f64 = 1e-6;
+
+/// Whether `obb` overlaps an occupied cell of `map`, cell by cell under its bounding box
+/// (the exact rectangle-versus-square test of [`obb_hits_map`]).
+fn hits_cell_by_cell(obb: &Obb, map: &Map) -> bool {
     let res = map.resolution();
     // The box in grid coordinates (cells): centre, heading relative to the grid axes,
     // and half extents in cells.
@@ -137,6 +160,45 @@ mod tests {
         let mut b2 = b;
         b2.cx = 0.29 + reach + 1e-6;
         assert!(!obb_overlap(&a, &b2));
+    }
+
+    #[test]
+    fn the_discs_reject_only_boxes_the_cells_clear() {
+        // Boxes of cars and of other sizes at every heading, anywhere on grids of scattered
+        // cells and blocks: the answer with the rejections is the cell-by-cell one.
+        let mut rng = crate::rng::Rng::new(23);
+        let (mut near_misses, mut hits) = (0, 0);
+        for trial in 0..30 {
+            let (w, h) = (60 + rng.below(60) as usize, 60 + rng.below(60) as usize);
+            let map = crate::lidar::tests::random_map(&mut rng, w, h);
+            for _ in 0..2000 {
+                let (gx, gy) = (
+                    rng.uniform_range(0.0, w as f64),
+                    rng.uniform_range(0.0, h as f64),
+                );
+                let (x, y) = map.grid_to_world(gx, gy);
+                let th = rng.uniform_range(-7.0, 7.0);
+                let obb = if rng.uniform() < 0.7 {
+                    car(x, y, th)
+                } else {
+                    Obb {
+                        cx: x,
+                        cy: y,
+                        theta: th,
+                        half_length: rng.uniform_range(0.01, 0.6),
+                        half_width: rng.uniform_range(0.01, 0.4),
+                    }
+                };
+                let want = hits_cell_by_cell(&obb, &map);
+                assert_eq!(obb_hits_map(&obb, &map), want, "trial {trial}: {obb:?}");
+                hits += usize::from(want);
+                let whole = map.clearance(obb.cx, obb.cy) > obb.circumradius();
+                near_misses += usize::from(!whole && !want);
+            }
+        }
+        // both answers met often, and boxes the whole-box disc could not clear that hit
+        // nothing (those the two discs may answer for)
+        assert!(hits > 5_000 && near_misses > 5_000, "{hits} {near_misses}");
     }
 
     #[test]

@@ -148,7 +148,7 @@ fn noise_is_seeded_and_small() {
 }
 
 /// A random grid: scattered cells (sparse or dense) and a few blocks.
-fn random_map(rng: &mut Rng, w: usize, h: usize) -> Map {
+pub(crate) fn random_map(rng: &mut Rng, w: usize, h: usize) -> Map {
     let mut g = vec![false; w * h];
     let density = if rng.uniform() < 0.5 { 0.04 } else { 0.003 };
     for cell in g.iter_mut() {
