@@ -94,22 +94,19 @@ pub struct Track {
     points: Vec<CenterPoint>,
     /// Cumulative arc length at each point; `cum_s[n] = length` closes the loop.
     cum_s: Vec<f64>,
-    /// Unit direction and length of the segment from point i to point i+1 (wrapping).
-    seg_dir: Vec<(f64, f64)>,
-    seg_len: Vec<f64>,
     length: f64,
     raceline: Option<Vec<RacelinePoint>>,
     /// Coarse spatial hash of segments for global projection.
     grid: SegmentGrid,
-    /// The segments again for the local search (see [`Window`]).
-    window: Window,
+    /// The segments from point i to point i+1 (wrapping), see [`Segments`].
+    seg: Segments,
 }
 
 /// Each segment's start, unit direction and length as arrays, segment `j mod n` at `j`
 /// for `j < n + 2 LOCAL_WINDOW`: a local search's window of segments is one run of
 /// consecutive entries, wrapping or not, which the compiler can step through in vectors.
 #[derive(Debug, Clone)]
-struct Window {
+struct Segments {
     ax: Vec<f64>,
     ay: Vec<f64>,
     dx: Vec<f64>,
@@ -117,10 +114,10 @@ struct Window {
     len: Vec<f64>,
 }
 
-impl Window {
-    fn new(points: &[CenterPoint], dirs: &[(f64, f64)], lens: &[f64]) -> Window {
+impl Segments {
+    fn new(points: &[CenterPoint], dirs: &[(f64, f64)], lens: &[f64]) -> Segments {
         let idx = (0..points.len() + 2 * LOCAL_WINDOW).map(|j| j % points.len());
-        Window {
+        Segments {
             ax: idx.clone().map(|i| points[i].x).collect(),
             ay: idx.clone().map(|i| points[i].y).collect(),
             dx: idx.clone().map(|i| dirs[i].0).collect(),
@@ -133,7 +130,7 @@ impl Window {
     /// (`first < n`), each as [`Track::project_on_segment`] computes it (the same
     /// operations, so the same bits).
     #[inline]
-    fn distances(&self, first: usize, x: f64, y: f64) -> [f64; 2 * LOCAL_WINDOW + 1] {
+    fn window(&self, first: usize, x: f64, y: f64) -> [f64; 2 * LOCAL_WINDOW + 1] {
         const W: usize = 2 * LOCAL_WINDOW + 1;
         let r = first..first + W;
         let (ax, ay) = (&self.ax[r.clone()], &self.ay[r.clone()]);
@@ -222,16 +219,14 @@ impl Track {
             }
         }
         let grid = SegmentGrid::build(&points);
-        let window = Window::new(&points, &seg_dir, &seg_len);
+        let seg = Segments::new(&points, &seg_dir, &seg_len);
         Ok(Self {
             points,
             cum_s,
-            seg_dir,
-            seg_len,
             length: s,
             raceline,
             grid,
-            window,
+            seg,
         })
     }
 
@@ -268,14 +263,14 @@ impl Track {
             Ok(i) => i.min(self.points.len() - 1),
             Err(i) => i - 1,
         };
-        let t = if self.seg_len[i] > 0.0 {
-            (s - self.cum_s[i]) / self.seg_len[i]
+        let t = if self.seg.len[i] > 0.0 {
+            (s - self.cum_s[i]) / self.seg.len[i]
         } else {
             0.0
         };
         let n = self.points.len();
         let (a, b) = (self.points[i], self.points[(i + 1) % n]);
-        let (dx, dy) = self.seg_dir[i];
+        let (dx, dy) = (self.seg.dx[i], self.seg.dy[i]);
         let pose = Pose::new(
             a.x + t * (b.x - a.x),
             a.y + t * (b.y - a.y),
@@ -288,18 +283,18 @@ impl Track {
 
     fn project_on_segment(&self, i: usize, x: f64, y: f64) -> (f64, f64, f64) {
         // returns (squared distance, t in [0, len], signed lateral)
-        let a = self.points[i];
-        let (dx, dy) = self.seg_dir[i];
-        let (rx, ry) = (x - a.x, y - a.y);
-        let t = (rx * dx + ry * dy).clamp(0.0, self.seg_len[i]);
-        let (px, py) = (a.x + t * dx, a.y + t * dy);
+        let (ax, ay) = (self.seg.ax[i], self.seg.ay[i]);
+        let (dx, dy) = (self.seg.dx[i], self.seg.dy[i]);
+        let (rx, ry) = (x - ax, y - ay);
+        let t = (rx * dx + ry * dy).clamp(0.0, self.seg.len[i]);
+        let (px, py) = (ax + t * dx, ay + t * dy);
         let d2 = (x - px) * (x - px) + (y - py) * (y - py);
         let lateral = dx * ry - dy * rx;
         (d2, t, lateral)
     }
 
     fn projection_from(&self, i: usize, t: f64, lateral: f64) -> Projection {
-        let (dx, dy) = self.seg_dir[i];
+        let (dx, dy) = (self.seg.dx[i], self.seg.dy[i]);
         let mut s = self.cum_s[i] + t;
         if s >= self.length {
             s -= self.length;
@@ -312,22 +307,38 @@ impl Track {
         }
     }
 
-    /// The nearest of `segments` to (x, y) as (squared distance, segment, t, lateral);
-    /// ties go to the lower index, so the result never depends on the search order.
+    /// The nearest to (x, y) of the segments `candidates` gives with their squared
+    /// distances, as (squared distance, segment, t, lateral); ties go to the lower index,
+    /// so the result never depends on the search order. (infinity, 0, 0, 0) when none is
+    /// nearer than infinity.
     fn nearest_segment(
+        &self,
+        candidates: impl Iterator<Item = (usize, f64)>,
+        x: f64,
+        y: f64,
+    ) -> (f64, usize, f64, f64) {
+        let mut best = (f64::INFINITY, 0usize);
+        for (i, d2) in candidates {
+            if d2 < best.0 || (d2 == best.0 && i < best.1) {
+                best = (d2, i);
+            }
+        }
+        if best.0 == f64::INFINITY {
+            return (f64::INFINITY, 0, 0.0, 0.0);
+        }
+        let (d2, t, lat) = self.project_on_segment(best.1, x, y);
+        (d2, best.1, t, lat)
+    }
+
+    /// Segments `segments` with their squared distances to (x, y), for
+    /// [`Track::nearest_segment`].
+    fn distances(
         &self,
         segments: impl Iterator<Item = usize>,
         x: f64,
         y: f64,
-    ) -> (f64, usize, f64, f64) {
-        let mut best = (f64::INFINITY, 0usize, 0.0, 0.0);
-        for i in segments {
-            let (d2, t, lat) = self.project_on_segment(i, x, y);
-            if d2 < best.0 || (d2 == best.0 && i < best.1) {
-                best = (d2, i, t, lat);
-            }
-        }
-        best
+    ) -> impl Iterator<Item = (usize, f64)> {
+        segments.map(move |i| (i, self.project_on_segment(i, x, y).0))
     }
 
     /// Is a nearest-segment answer beyond the radius within which the segment grid's
@@ -340,13 +351,16 @@ impl Track {
     pub fn project(&self, x: f64, y: f64) -> Projection {
         let n = self.points.len();
         let mut best = match self.grid.candidates(x, y) {
-            Some(list) => self.nearest_segment(list.iter().map(|&i| i as usize), x, y),
-            None => self.nearest_segment(0..n, x, y),
+            Some(list) => {
+                let list = self.distances(list.iter().map(|&i| i as usize), x, y);
+                self.nearest_segment(list, x, y)
+            }
+            None => self.nearest_segment(self.distances(0..n, x, y), x, y),
         };
         // The grid lists every segment within its search radius of the cell; a point
         // farther than that from every listed segment may have a nearer unlisted one.
         if self.beyond_grid(best.0) {
-            best = self.nearest_segment(0..n, x, y);
+            best = self.nearest_segment(self.distances(0..n, x, y), x, y);
         }
         self.projection_from(best.1, best.2, best.3)
     }
@@ -363,22 +377,13 @@ impl Track {
         let wrap = |i: usize| if i >= n { i - n } else { i };
         let hint = if hint < n { hint } else { hint % n };
         let first = wrap(hint + n - LOCAL_WINDOW);
-        // `nearest_segment` over the window: the distances all at once, then the least
-        // in the same order with the same ties, then the winner's projection.
-        let mut best = (f64::INFINITY, 0usize);
-        for (k, d2) in self.window.distances(first, x, y).into_iter().enumerate() {
-            let i = wrap(first + k);
-            if d2 < best.0 || (d2 == best.0 && i < best.1) {
-                best = (d2, i);
-            }
-        }
-        let best = if best.0 == f64::INFINITY && best.1 == 0 {
-            // nothing nearer than infinity (NaN coordinates): as `nearest_segment` leaves it
-            (f64::INFINITY, 0, 0.0, 0.0)
-        } else {
-            let (d2, t, lat) = self.project_on_segment(best.1, x, y);
-            (d2, best.1, t, lat)
-        };
+        // The window's distances all at once.
+        let window = self.seg.window(first, x, y);
+        let candidates = window
+            .into_iter()
+            .enumerate()
+            .map(|(k, d2)| (wrap(first + k), d2));
+        let best = self.nearest_segment(candidates, x, y);
         // Accept the local answer only if it lies strictly inside the window; otherwise
         // the car may have moved on (or jumped) and the global search decides.
         let offset = wrap(best.1 + n - first);
@@ -437,7 +442,13 @@ pub(crate) mod tests {
     fn project_near_by_segments(t: &Track, x: f64, y: f64, hint: usize) -> Projection {
         let n = t.points.len();
         let first = (hint + n - LOCAL_WINDOW) % n;
-        let best = t.nearest_segment((0..=2 * LOCAL_WINDOW).map(|k| (first + k) % n), x, y);
+        let mut best = (f64::INFINITY, 0usize, 0.0, 0.0);
+        for i in (0..=2 * LOCAL_WINDOW).map(|k| (first + k) % n) {
+            let (d2, s, lat) = t.project_on_segment(i, x, y);
+            if d2 < best.0 || (d2 == best.0 && i < best.1) {
+                best = (d2, i, s, lat);
+            }
+        }
         let offset = (best.1 + n - first) % n;
         if offset == 0 || offset == 2 * LOCAL_WINDOW || t.beyond_grid(best.0) {
             return t.project(x, y);
