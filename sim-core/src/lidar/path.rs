@@ -151,12 +151,17 @@ pub(in crate::lidar) fn sweep_in_256_bits() -> bool {
         return forced;
     }
     #[cfg(target_arch = "x86_64")]
-    {
-        static INTEL: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *INTEL.get_or_init(|| cpu_vendor() == "GenuineIntel")
-    }
+    return intel();
     #[cfg(not(target_arch = "x86_64"))]
     false
+}
+
+/// Whether this CPU is Intel's (CPUID's vendor string), read once: the choices that
+/// differ between Intel and AMD CPUs ask this.
+#[cfg(target_arch = "x86_64")]
+pub(in crate::lidar) fn intel() -> bool {
+    static INTEL: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *INTEL.get_or_init(|| cpu_vendor() == "GenuineIntel")
 }
 
 #[cfg(test)]

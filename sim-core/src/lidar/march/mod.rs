@@ -73,9 +73,7 @@ pub(super) fn avx512_usable(map: &Map) -> bool {
 #[cfg(target_arch = "x86_64")]
 pub(in crate::lidar) fn avx_gather_pays() -> bool {
     static PAYS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *PAYS.get_or_init(|| {
-        super::path::cpu_vendor() == "GenuineIntel" && std::arch::is_x86_feature_detected!("avx2")
-    })
+    *PAYS.get_or_init(|| super::path::intel() && std::arch::is_x86_feature_detected!("avx2"))
 }
 
 /// 1.5 * 2^52: adding and subtracting it rounds a float of magnitude < 2^51 to an integer.
