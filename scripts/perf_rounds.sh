@@ -80,8 +80,12 @@ done
 
 python3 - "$runs" "$base (${rev:0:12})" "$(git rev-parse --short=12 HEAD)" <<'EOF'
 import json
+import signal
 import statistics
 import sys
+
+# quiet on a closed pipe (`| head`), as a Unix tool
+signal.signal(signal.SIGPIPE, signal.SIG_DFL)
 
 path, base, head = sys.argv[1:4]
 rows = []
