@@ -114,19 +114,27 @@ class Frame:
         laps = self.learner_laps
         return laps[:, 0] if laps.shape[1] == 1 else laps
 
-    def obs(self) -> dict[str, np.ndarray]:
-        s = self.states
+    def obs(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The f1tenth_gym observation dict of every env (arrays over envs), or of env
+        ``env`` alone (its rows, indexed once per key)."""
+        if env is None:
+            s, scans, collisions, lap_times, lap_counts = (
+                self.states, self.scans, self.collisions, self.lap_times, self.lap_counts)
+        else:
+            s, scans, collisions, lap_times, lap_counts = (
+                self.states[env], self.scans[env], self.collisions[env], self.lap_times[env],
+                self.lap_counts[env])
         return {
-            "scans": self.scans,
-            "poses_x": s[:, :, 0],
-            "poses_y": s[:, :, 1],
-            "poses_theta": s[:, :, 2],
-            "linear_vels_x": s[:, :, 3],
-            "linear_vels_y": s[:, :, 4],
-            "ang_vels_z": s[:, :, 5],
-            "collisions": self.collisions,
-            "lap_times": self.lap_times,
-            "lap_counts": self.lap_counts,
+            "scans": scans,
+            "poses_x": s[..., 0],
+            "poses_y": s[..., 1],
+            "poses_theta": s[..., 2],
+            "linear_vels_x": s[..., 3],
+            "linear_vels_y": s[..., 4],
+            "ang_vels_z": s[..., 5],
+            "collisions": collisions,
+            "lap_times": lap_times,
+            "lap_counts": lap_counts,
         }
 
     def car_values(self, key: str, car: int) -> np.ndarray:
@@ -270,20 +278,21 @@ class EnvSession:
 
     def _frame(self, frames: list[Any]) -> Frame:
         o = wire.observation(frames)
+        m = o.message  # its fields read directly (not through the Observation's lookup)
         (scans, states, rewards, terminated, truncated, progress, laps, time, collisions,
          lap_counts, lap_times) = self._layouts
         return Frame(
             scans=_frombuffer(o.scans, scans, "scans"),
-            states=_frombuffer(o.states, states, "states"),
-            learner_rewards=_frombuffer(o.rewards, rewards, "rewards"),
-            learner_terminated=_frombuffer(o.terminated, terminated, "terminated").astype(bool),
-            truncated=_frombuffer(o.truncated, truncated, "truncated").astype(bool),
-            learner_progress=_frombuffer(o.progress, progress, "progress"),
-            learner_laps=_frombuffer(o.laps, laps, "laps"),
-            time=_frombuffer(o.time, time, "time"),
-            collisions=_frombuffer(o.agent_collisions, collisions, "agent_collisions").astype(np.float64),
-            lap_counts=_frombuffer(o.agent_lap_counts, lap_counts, "agent_lap_counts").astype(np.int32),
-            lap_times=_frombuffer(o.agent_lap_times, lap_times, "agent_lap_times"),
+            states=_frombuffer(m.states, states, "states"),
+            learner_rewards=_frombuffer(m.rewards, rewards, "rewards"),
+            learner_terminated=_frombuffer(m.terminated, terminated, "terminated").astype(bool),
+            truncated=_frombuffer(m.truncated, truncated, "truncated").astype(bool),
+            learner_progress=_frombuffer(m.progress, progress, "progress"),
+            learner_laps=_frombuffer(m.laps, laps, "laps"),
+            time=_frombuffer(m.time, time, "time"),
+            collisions=_frombuffer(m.agent_collisions, collisions, "agent_collisions").astype(np.float64),
+            lap_counts=_frombuffer(m.agent_lap_counts, lap_counts, "agent_lap_counts").astype(np.int32),
+            lap_times=_frombuffer(m.agent_lap_times, lap_times, "agent_lap_times"),
         )
 
     def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,
@@ -412,9 +421,9 @@ class F110Env(gym.Env):
         self._needs_reset = True
 
     def _single(self, f: Frame) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        obs = {k: v[0] for k, v in f.obs().items()}
+        obs = f.obs(0)
         if f.num_learners == 1:
-            info = {"progress": float(f.progress[0]), "laps": int(f.laps[0]),
+            info = {"progress": float(f.learner_progress[0, 0]), "laps": int(f.learner_laps[0, 0]),
                     "time": float(f.time[0]), "steering_angles": f.states[0, :, 6]}
         else:
             info = {k: v[0] for k, v in f.info().items()}

@@ -241,6 +241,17 @@ class VecEnv(_Base):
         return {"progress": float(f.progress[i]), "laps": int(f.laps[i]),
                 "time": float(f.time[i])}
 
+    @staticmethod
+    def _infos(f: Frame, time_limit: list[bool] | None = None) -> list[dict[str, Any]]:
+        """:meth:`_info` of every env (the arrays turned into Python numbers once, not
+        env by env), with ``TimeLimit.truncated`` from ``time_limit`` where given."""
+        progress, laps, time = f.progress.tolist(), f.laps.tolist(), f.time.tolist()
+        if time_limit is None:
+            return [{"progress": p, "laps": n, "time": t}
+                    for p, n, t in zip(progress, laps, time)]
+        return [{"progress": p, "laps": n, "time": t, "TimeLimit.truncated": c}
+                for p, n, t, c in zip(progress, laps, time, time_limit)]
+
     # -- the VecEnv interface ---------------------------------------------------------
 
     def _reset_envs(self, envs: list[int] | None, seeds: list[int] | None,
@@ -271,7 +282,7 @@ class VecEnv(_Base):
                 seed = None if self._seeds[i] is None else [int(self._seeds[i])]
                 f = self._reset_envs([i], seed, self._options[i]["poses"])
         assert f is not None
-        self.reset_infos = [self._info(f, i) for i in range(n)]
+        self.reset_infos = self._infos(f)
         self._reset_seeds()
         self._reset_options()
         return self._obs(f)
@@ -293,10 +304,8 @@ class VecEnv(_Base):
         terminated = np.array(f.terminated, dtype=bool)
         truncated = np.array(f.truncated, dtype=bool)
         dones = terminated | truncated
-        infos = [self._info(f, i) for i in range(self.num_envs)]
+        infos = self._infos(f, (truncated & ~terminated).tolist())
         ended = dones.nonzero()[0].tolist()
-        for i in range(self.num_envs):
-            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         if ended:
             for i in ended:
                 infos[i]["terminal_observation"] = {k: v[i].copy() for k, v in obs.items()}

@@ -11,14 +11,10 @@ without copying. An image reply (``EnvImage``) is the same: its size, then its p
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 from . import errors
 from ._proto import paddock_pb2 as pb
-
-_EMPTY = memoryview(b"")
-
 
 def _view(frame: Any) -> memoryview:
     """A read-only view of a received frame (a ``zmq.Frame`` or bytes) without a copy."""
@@ -27,36 +23,31 @@ def _view(frame: Any) -> memoryview:
     return view if view.format == "B" else view.cast("B")
 
 
-@dataclass
 class Observation:
-    """The fields of an ``EnvObservation`` and the scans frame (the same names as the
-    protobuf message, bytes fields as buffers numpy reads in place)."""
+    """An ``EnvObservation`` as received: the parsed message (``message``; its fields are
+    also read as this object's attributes, by the protobuf names) and the scans frame
+    (``scans``), a buffer numpy reads in place."""
 
-    num_envs: int = 0
-    scans: memoryview = _EMPTY
-    states: bytes = b""
-    rewards: bytes = b""
-    terminated: bytes = b""
-    truncated: bytes = b""
-    progress: bytes = b""
-    laps: bytes = b""
-    time: bytes = b""
-    agent_collisions: bytes = b""
-    agent_lap_counts: bytes = b""
-    agent_lap_times: bytes = b""
+    __slots__ = ("message", "scans")
+
+    def __init__(self, message: pb.EnvObservation, scans: memoryview) -> None:
+        self.message = message
+        self.scans = scans
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "message":  # not set yet: no field to look for
+            raise AttributeError(name)
+        return getattr(self.message, name)
 
 
 def observation(frames: list[Any]) -> Observation:
     """The observation of an env reply's two payload frames."""
     if len(frames) != 2:
         raise errors.BadMessage(1, "env_reply", f"an observation has 2 payload frames, got {len(frames)}")
-    meta = pb.EnvObservation()
-    meta.ParseFromString(_view(frames[0]))
-    return Observation(
-        num_envs=meta.num_envs, scans=_view(frames[1]), states=meta.states, rewards=meta.rewards,
-        terminated=meta.terminated, truncated=meta.truncated, progress=meta.progress,
-        laps=meta.laps, time=meta.time, agent_collisions=meta.agent_collisions,
-        agent_lap_counts=meta.agent_lap_counts, agent_lap_times=meta.agent_lap_times)
+    # the small message is parsed from its bytes (a zmq.Frame's are copied once: a few KB)
+    raw = getattr(frames[0], "bytes", frames[0])
+    meta = pb.EnvObservation.FromString(raw if isinstance(raw, bytes) else _view(frames[0]))
+    return Observation(meta, _view(frames[1]))
 
 
 def image(frames: list[Any]) -> tuple[pb.EnvImage, memoryview]:

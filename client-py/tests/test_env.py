@@ -174,3 +174,27 @@ def test_endpoint_none_starts_and_stops_a_local_serve() -> None:
     assert obs["scans"].shape == (1, 16)
     env.close()
     assert process.poll() is not None, "close() stops the local serve"
+
+
+def test_one_envs_observation_is_its_rows_of_every_envs() -> None:
+    """`Frame.obs(i)` (what the single env returns) holds env i's rows of `Frame.obs()`
+    (what the vector env returns), key by key, as views of the same arrays."""
+    n, cars, learners, beams = 3, 2, 1, 5
+    rng = np.random.default_rng(0)
+    f = paddock.env.Frame(
+        scans=rng.random((n, learners, beams), dtype=np.float32),
+        states=rng.random((n, cars, 7)), learner_rewards=rng.random((n, learners)),
+        learner_terminated=np.zeros((n, learners), bool), truncated=np.zeros(n, bool),
+        learner_progress=rng.random((n, learners)), learner_laps=np.ones((n, learners), np.uint32),
+        time=rng.random(n), collisions=rng.random((n, cars)),
+        lap_counts=np.arange(n * cars, dtype=np.int32).reshape(n, cars),
+        lap_times=rng.random((n, cars)))
+    every = f.obs()
+    assert list(every) == list(paddock.env.OBS_KEYS)
+    for i in range(n):
+        one = f.obs(i)
+        assert list(one) == list(every)
+        for k, v in one.items():
+            assert v.shape == every[k].shape[1:], k
+            np.testing.assert_array_equal(v, every[k][i], err_msg=k)
+            assert np.shares_memory(v, every[k]), k

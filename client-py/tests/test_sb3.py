@@ -55,6 +55,12 @@ def test_spaces_reset_seed_and_step(endpoint: str) -> None:
         assert d1.dtype == np.bool_ and d1.shape == (3,) and not d1.any()
         assert isinstance(i1, list) and len(i1) == 3
         assert all(i["TimeLimit.truncated"] is False for i in i1)
+        # plain Python numbers (loggers and Monitor files take them as they are), each env's
+        # own: the same values as the frame's arrays read env by env
+        for info in i1 + env.reset_infos:
+            assert [type(info[key]) for key in ("progress", "laps", "time")] == [float, int, float]
+        assert [i["time"] for i in i1] == [0.01] * 3
+        assert len({i["progress"] for i in i1}) == 3, "three envs, three starts, three progresses"
         assert o1["linear_vels_x"][0, 0] > 0.0
         # step() is step_async + step_wait, and the env is deterministic per seed
         env.seed(10)
