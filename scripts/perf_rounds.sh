@@ -26,7 +26,7 @@ if ! [[ "$rounds" =~ ^[1-9][0-9]{0,2}$ ]]; then
     echo "error: ROUNDS = '$rounds' must be a whole number from 1 to 999" >&2
     exit 2
 fi
-if ! [[ "$seconds" =~ ^[0-9]+(\.[0-9]+)?$ ]]; then
+if ! [[ "$seconds" =~ ^[0-9]+(\.[0-9]+)?$ ]] || ! awk "BEGIN { exit !($seconds > 0) }"; then
     echo "error: SECONDS = '$seconds' must be a positive number of seconds" >&2
     exit 2
 fi

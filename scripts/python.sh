@@ -19,25 +19,7 @@ if [ -z "${PADDOCK_BIN:-}" ]; then
     source scripts/setup.sh
 fi
 
-VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
-PY="${PYTHON:-python3}"
-PINS=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0
-      cyclonedds==11.0.1 rosbags==0.11.9 mcap==1.6.0
-      pygame==2.6.1 moviepy==2.2.1 onnx==1.23.2 onnxruntime==1.32.0 pettingzoo==1.27.0)
-
-if [ ! -x "$VENV/bin/python" ]; then
-    echo "python.sh: creating the venv $VENV"
-    "$PY" -m venv "$VENV"
-fi
-# install only when the pins, the package metadata or the checkout (the editable
-# install points into it) changed
-stamp="$VENV/.paddock-stamp"
-want="$( { printf '%s\n' "${PINS[@]}" "$(pwd -P)"; cat client-py/pyproject.toml; } | sha256sum | cut -d' ' -f1)"
-if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "${PINS[@]}"
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e client-py
-    echo "$want" > "$stamp"
-fi
+source scripts/venv.sh
 
 if [ -z "${PADDOCK_BIN:-}" ]; then
     cargo build --release --locked -q -p paddock -p paddock-embed

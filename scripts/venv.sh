@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The Python client's venv: pinned dependencies and the package installed in editable
+# mode from this checkout. Sourced by scripts/python.sh and scripts/vecenv_rounds.sh (run
+# from the checkout's root); sets VENV.
+#
+# PADDOCK_VENV overrides the venv (default ~/.cache/paddock/venv); PYTHON the interpreter
+# that creates it (default python3).
+VENV="${PADDOCK_VENV:-$HOME/.cache/paddock/venv}"
+_py="${PYTHON:-python3}"
+_pins=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 pytest==9.2.0
+       cyclonedds==11.0.1 rosbags==0.11.9 mcap==1.6.0
+       pygame==2.6.1 moviepy==2.2.1 onnx==1.23.2 onnxruntime==1.32.0 pettingzoo==1.27.0)
+
+if [ ! -x "$VENV/bin/python" ]; then
+    echo "venv.sh: creating the venv $VENV" >&2
+    "$_py" -m venv "$VENV"
+fi
+# install only when the pins, the package metadata or the checkout (the editable
+# install points into it) changed
+_stamp="$VENV/.paddock-stamp"
+_want="$( { printf '%s\n' "${_pins[@]}" "$(pwd -P)"; cat client-py/pyproject.toml; } | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$_stamp" ] || [ "$(cat "$_stamp")" != "$_want" ]; then
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "${_pins[@]}"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e client-py
+    echo "$_want" > "$_stamp"
+fi
+unset _py _pins _stamp _want
