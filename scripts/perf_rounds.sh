@@ -22,14 +22,7 @@ source scripts/setup.sh
 base="${1:-4acddcb}"
 rounds="${2:-5}"
 seconds="${3:-2}"
-if ! [[ "$rounds" =~ ^[1-9][0-9]{0,2}$ ]]; then
-    echo "error: ROUNDS = '$rounds' must be a whole number from 1 to 999" >&2
-    exit 2
-fi
-if ! [[ "$seconds" =~ ^[0-9]+(\.[0-9]+)?$ ]] || ! awk "BEGIN { exit !($seconds > 0) }"; then
-    echo "error: SECONDS = '$seconds' must be a positive number of seconds" >&2
-    exit 2
-fi
+source scripts/rounds.sh
 rev="$(git rev-parse --verify --quiet "$base^{commit}")" || {
     echo "error: BASE = '$base' is not a commit of this repository (a shallow clone may lack it: git fetch --unshallow)" >&2
     exit 2
@@ -59,10 +52,6 @@ if [ ! -x "$base_tree.bin" ]; then
 fi
 base_bin="$base_tree.bin"
 
-pin=()
-if command -v taskset >/dev/null 2>&1 && [ "$(nproc)" -gt 1 ]; then
-    pin=(taskset -c 1)
-fi
 runs="$(mktemp)"
 trap 'rm -f "$runs"' EXIT
 # shellcheck disable=SC2086  # PERF_ARGS is a list of flags

@@ -18,14 +18,7 @@ source scripts/venv.sh
 
 rounds="${1:-3}"
 seconds="${2:-3}"
-if ! [[ "$rounds" =~ ^[1-9][0-9]{0,2}$ ]]; then
-    echo "error: ROUNDS = '$rounds' must be a whole number from 1 to 999" >&2
-    exit 2
-fi
-if ! [[ "$seconds" =~ ^[0-9]+(\.[0-9]+)?$ ]] || ! awk "BEGIN { exit !($seconds > 0) }"; then
-    echo "error: SECONDS = '$seconds' must be a positive number of seconds" >&2
-    exit 2
-fi
+source scripts/rounds.sh
 
 cargo build --release --locked -q -p paddock -p paddock-embed
 bench="$(cargo bench --locked -p paddock-worker --bench env_session --no-run 2>&1 |
@@ -37,10 +30,6 @@ fi
 export PADDOCK_BIN="$CARGO_TARGET_DIR/release/paddock"
 export PADDOCK_EMBED_LIB="$CARGO_TARGET_DIR/release/libpaddock_embed.so"
 
-pin=()
-if command -v taskset >/dev/null 2>&1 && [ "$(nproc)" -gt 1 ]; then
-    pin=(taskset -c 1)
-fi
 runs="$(mktemp)"
 trap 'rm -f "$runs"' EXIT
 for r in $(seq 1 "$rounds"); do
