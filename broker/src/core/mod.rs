@@ -40,9 +40,7 @@ pub fn principal(user_id: Option<&str>, route: &[u8]) -> Principal {
 }
 
 /// Bytes as lower-case hex digits (routing ids in logs and principals, job ids).
-pub fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
-}
+pub use paddock_proto::hex;
 
 /// Workers and tasks together: credit-based dispatch and requeueing. `R` is what the
 /// broker keeps of a task's result.
