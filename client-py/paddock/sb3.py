@@ -181,7 +181,7 @@ class _EnvView:
               options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict]:
         f = self._vec._reset_envs([self.index], None if seed is None else [seed],
                                   (options or {}).get("poses"))
-        return self._vec._obs_at(f, self.index), self._vec._info(f, self.index)
+        return self._vec._obs_at(f, self.index), self._vec._infos(f)[self.index]
 
     def get_wrapper_attr(self, name: str) -> Any:
         return getattr(self, name)
@@ -237,14 +237,10 @@ class VecEnv(_Base):
         return {k: f.car_values(k, 0)[i] for k in self.keys}
 
     @staticmethod
-    def _info(f: Frame, i: int) -> dict[str, Any]:
-        return {"progress": float(f.progress[i]), "laps": int(f.laps[i]),
-                "time": float(f.time[i])}
-
-    @staticmethod
     def _infos(f: Frame, time_limit: list[bool] | None = None) -> list[dict[str, Any]]:
-        """:meth:`_info` of every env (the arrays turned into Python numbers once, not
-        env by env), with ``TimeLimit.truncated`` from ``time_limit`` where given."""
+        """Every env's info: its learner car's progress, laps and the env's time, as
+        Python numbers (the arrays turned into lists once, not read env by env), with
+        ``TimeLimit.truncated`` from ``time_limit`` where given."""
         progress, laps, time = f.progress.tolist(), f.laps.tolist(), f.time.tolist()
         if time_limit is None:
             return [{"progress": p, "laps": n, "time": t}
@@ -314,8 +310,9 @@ class VecEnv(_Base):
             fresh = self._obs(r)
             for k in obs:
                 obs[k][ended] = fresh[k][ended]
+            fresh_infos = self._infos(r)
             for i in ended:
-                self.reset_infos[i] = self._info(r, i)
+                self.reset_infos[i] = fresh_infos[i]
         return obs, rewards, dones, infos
 
     def close(self) -> None:
