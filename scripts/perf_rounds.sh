@@ -23,34 +23,13 @@ base="${1:-4acddcb}"
 rounds="${2:-5}"
 seconds="${3:-2}"
 source scripts/rounds.sh
-rev="$(git rev-parse --verify --quiet "$base^{commit}")" || {
-    echo "error: BASE = '$base' is not a commit of this repository (a shallow clone may lack it: git fetch --unshallow)" >&2
-    exit 2
-}
+rev="$(base_rev "$base")"
 
 cargo build --release --locked -q -p paddock
 head_bin="$CARGO_TARGET_DIR/release/paddock"
 
-# The base: its own worktree and target directory (its binary must not overwrite this
-# checkout's), third-party crates reused from this checkout's directory on first use.
-base_tree="$CARGO_TARGET_DIR/perf-base/${rev:0:12}"
-base_target="$CARGO_TARGET_DIR/perf-base/target"
-if [ ! -x "$base_tree.bin" ]; then
-    rm -rf "$base_tree"
-    git worktree prune
-    git worktree add --detach --quiet "$base_tree" "$rev"
-    if [ ! -d "$base_target" ]; then
-        mkdir -p "$base_target"
-        cp -a "$CARGO_TARGET_DIR/release" "$base_target/release" 2>/dev/null || true
-        # every paddock crate is built again from the base's sources (as scripts/setup.sh
-        # seeds a new checkout's directory)
-        find "$base_target" -path '*/.fingerprint/paddock-*' -prune -exec rm -rf {} + 2>/dev/null || true
-    fi
-    echo "building the base $base (${rev:0:12}) in $base_tree" >&2
-    (cd "$base_tree" && CARGO_TARGET_DIR="$base_target" cargo build --release --locked -q -p paddock)
-    cp "$base_target/release/paddock" "$base_tree.bin"
-fi
-base_bin="$base_tree.bin"
+# The base: its own worktree and target directory (see base_build in scripts/rounds.sh).
+base_bin="$(base_build "$rev" paddock paddock)"
 
 runs="$(mktemp)"
 trap 'rm -f "$runs"' EXIT

@@ -1,0 +1,80 @@
+"""``benchmarks/ab_steps.py``, the side-by-side timing of two builds of the simulator in
+one process: two copies of the library coexist (each with its own worlds), the report's
+figures are what they say, and bad arguments are refused naming the value."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from paddock.inprocess import find_library
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPT = ROOT / "client-py" / "benchmarks" / "ab_steps.py"
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture
+def two_copies(tmp_path: Path) -> tuple[Path, Path]:
+    lib = Path(find_library())
+    a, b = tmp_path / "a" / lib.name, tmp_path / "b" / lib.name
+    for p in (a, b):
+        p.parent.mkdir()
+        shutil.copy(lib, p)
+    return a, b
+
+
+@pytest.mark.parametrize("first", ["base", "head"])
+def test_two_copies_of_one_build_run_side_by_side(two_copies, first: str) -> None:
+    a, b = two_copies
+    r = run("--base", a, "--head", b, "--envs", 2, "--seconds", 1.5, "--block-ms", 5,
+            "--load-first", first, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["load_first"] == first and doc["envs"] == 2 and doc["pairs"] >= 4
+    assert doc["block_steps"] >= 1
+    lo, hi = doc["head_speed_over_base_ci95"]
+    assert lo <= doc["head_speed_over_base"] <= hi
+    assert doc["head_speed_over_base"] == pytest.approx(1 / doc["head_time_over_base_median"])
+    # one build against itself: the same speed within the noise of a loaded test machine
+    assert 0.5 < doc["head_speed_over_base"] < 2.0
+    assert 0.0 <= doc["head_faster_share"] <= 1.0
+    assert all(v > 0 for v in doc["env_steps_per_cpu_s"].values())
+
+
+def test_the_table(two_copies) -> None:
+    a, b = two_copies
+    r = run("--base", a, "--head", b, "--envs", 1, "--seconds", 1, "--block-ms", 5)
+    assert r.returncode == 0, r.stderr
+    assert "| head |" in r.stdout and "| base |" in r.stdout and "pairs of" in r.stdout
+
+
+@pytest.mark.parametrize("args, named", [
+    (["--seconds", "0"], "--seconds = 0.0"),
+    (["--seconds", "nan"], "--seconds = nan"),
+    (["--block-ms", "-5"], "--block-ms = -5.0"),
+    (["--envs", "0"], "--envs = 0"),
+    (["--seconds", "0.01", "--block-ms", "20"], "--seconds = 0.01"),
+])
+def test_bad_arguments_are_refused_by_name(two_copies, args: list[str], named: str) -> None:
+    a, b = two_copies
+    r = run("--base", a, "--head", b, *args)
+    assert r.returncode == 2
+    assert named in r.stderr
+
+
+def test_a_missing_library_is_named(two_copies, tmp_path: Path) -> None:
+    a, _ = two_copies
+    missing = tmp_path / "nowhere.so"
+    r = run("--base", a, "--head", missing, "--seconds", 1)
+    assert r.returncode != 0
+    assert str(missing) in r.stderr
