@@ -50,15 +50,15 @@ const LANES: usize = 4;
 #[derive(Default)]
 pub(super) struct Sweep {
     /// Unit direction in the grid frame of each beam (see [`Sweep::prepare`]).
-    pub dx: Vec<f64>,
-    pub dy: Vec<f64>,
-    inv_dx: Vec<f64>,
-    inv_dy: Vec<f64>,
+    pub dx: Lines,
+    pub dy: Lines,
+    inv_dx: Lines,
+    inv_dy: Lines,
     /// The least crossing so far (starts beyond the beam's range limit in cells).
-    best: Vec<f64>,
+    best: Lines,
     /// Non-zero: a crossing near a run end; the march decides this beam. All zero between
     /// scans (a scan clears the few it set), so a scan sets it only where it flags.
-    flag: Vec<f64>,
+    flag: Lines,
     /// Whether this scan has flagged any beam.
     flagged: bool,
     /// Per group of [`GROUP`] beams, the largest `best`, and a bit set of the groups a
@@ -93,6 +93,45 @@ pub(super) struct Sweep {
     /// `thread_scans_by_algorithm`).
     pub swept: u64,
     pub handed: u64,
+}
+
+/// Doubles laid out from the start of a 64-byte cache line: the AVX code's lanes of four
+/// beams (32 bytes, at multiples of four) then never straddle two lines, as half of them
+/// may in an allocation that is only 16-byte aligned.
+#[derive(Default)]
+pub(super) struct Lines {
+    lines: Vec<Line>,
+    len: usize,
+}
+
+/// One cache line of doubles.
+#[derive(Clone, Copy, Default)]
+#[repr(C, align(64))]
+struct Line([f64; 8]);
+
+impl Lines {
+    /// `len` zeros.
+    fn zeroed(&mut self, len: usize) {
+        self.lines.clear();
+        self.lines.resize(len.div_ceil(8), Line::default());
+        self.len = len;
+    }
+}
+
+impl std::ops::Deref for Lines {
+    type Target = [f64];
+    fn deref(&self) -> &[f64] {
+        // SAFETY: the lines hold at least `len` doubles back to back (`Line` is eight
+        // doubles with no padding), initialised, and borrowed with `self`.
+        unsafe { std::slice::from_raw_parts(self.lines.as_ptr().cast::<f64>(), self.len) }
+    }
+}
+
+impl std::ops::DerefMut for Lines {
+    fn deref_mut(&mut self) -> &mut [f64] {
+        // SAFETY: as in `deref`, borrowed mutably with `self`.
+        unsafe { std::slice::from_raw_parts_mut(self.lines.as_mut_ptr().cast::<f64>(), self.len) }
+    }
 }
 
 /// The wall faces of the origin's free region if the sweep applies to a scan of `n` beams
@@ -268,8 +307,7 @@ impl Sweep {
             &mut self.best,
             &mut self.flag,
         ] {
-            v.clear();
-            v.resize(padded, 0.0);
+            v.zeroed(padded);
         }
         let groups = n.div_ceil(GROUP);
         self.group_max.resize(groups, 0.0);
