@@ -24,6 +24,7 @@
 #[cfg(target_arch = "x86_64")]
 mod avx;
 mod fan;
+mod lines;
 
 use std::f64::consts::PI;
 use std::ops::Range;
@@ -34,6 +35,7 @@ use crate::map::faces::{BLOCK, MINUS_X, MINUS_Y, PLUS_X, PLUS_Y, WallFaces};
 use crate::rng::Rng;
 pub(super) use fan::Fan;
 use fan::{ANGLE_SLACK, beams_seeing, box_angles};
+use lines::Lines;
 
 /// Cells: a crossing this near a run's end is left to the march (the rounding of either
 /// side's expressions is below 1e-12 cells on maps up to 2^24 cells across).
@@ -93,45 +95,6 @@ pub(super) struct Sweep {
     /// `thread_scans_by_algorithm`).
     pub swept: u64,
     pub handed: u64,
-}
-
-/// Doubles laid out from the start of a 64-byte cache line: the AVX code's lanes of four
-/// beams (32 bytes, at multiples of four) then never straddle two lines, as half of them
-/// may in an allocation that is only 16-byte aligned.
-#[derive(Default)]
-pub(super) struct Lines {
-    lines: Vec<Line>,
-    len: usize,
-}
-
-/// One cache line of doubles.
-#[derive(Clone, Copy, Default)]
-#[repr(C, align(64))]
-struct Line([f64; 8]);
-
-impl Lines {
-    /// `len` zeros.
-    fn zeroed(&mut self, len: usize) {
-        self.lines.clear();
-        self.lines.resize(len.div_ceil(8), Line::default());
-        self.len = len;
-    }
-}
-
-impl std::ops::Deref for Lines {
-    type Target = [f64];
-    fn deref(&self) -> &[f64] {
-        // SAFETY: the lines hold at least `len` doubles back to back (`Line` is eight
-        // doubles with no padding), initialised, and borrowed with `self`.
-        unsafe { std::slice::from_raw_parts(self.lines.as_ptr().cast::<f64>(), self.len) }
-    }
-}
-
-impl std::ops::DerefMut for Lines {
-    fn deref_mut(&mut self) -> &mut [f64] {
-        // SAFETY: as in `deref`, borrowed mutably with `self`.
-        unsafe { std::slice::from_raw_parts_mut(self.lines.as_mut_ptr().cast::<f64>(), self.len) }
-    }
 }
 
 /// The wall faces of the origin's free region if the sweep applies to a scan of `n` beams
