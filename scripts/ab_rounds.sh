@@ -34,13 +34,12 @@ base_lib="$(base_build "$rev" paddock-embed libpaddock_embed.so)"
 # the head's library as a file of its own (the loader keeps one copy per file, and a
 # build during the run must not change it)
 head_lib="$(mktemp --suffix=.so)"
-trap 'rm -f "$head_lib"' EXIT
+runs="$(mktemp)"
+trap 'rm -f "$head_lib" "$runs"' EXIT
 cp "$CARGO_TARGET_DIR/release/libpaddock_embed.so" "$head_lib"
 
 head="$(git rev-parse --short=12 HEAD)"
 git diff --quiet HEAD -- . || head="$head with uncommitted changes"
-runs="$(mktemp)"
-trap 'rm -f "$head_lib" "$runs"' EXIT
 # shellcheck disable=SC2086  # AB_ARGS is a list of flags
 for r in $(seq 1 "$rounds"); do
     first=base

@@ -36,15 +36,14 @@ import time
 import numpy as np
 
 import paddock
-from paddock import inprocess
 
 
 def vector_env(library: str, envs: int, kw: dict):
-    """A vector env whose simulator is the library at ``library`` (loaded on its own)."""
+    """A vector env whose simulator is the library at ``library`` (an in-process session
+    runs the file that ``$PADDOCK_EMBED_LIB`` names when it is made, each file loaded
+    once: its own copy)."""
     if not os.path.isfile(library):
         raise SystemExit(f"error: --base/--head = {library!r} is not a file")
-    with inprocess._LIB_LOCK:
-        inprocess._LIB = None  # the next env loads the library that the variable names
     os.environ["PADDOCK_EMBED_LIB"] = os.path.abspath(library)
     env = paddock.make_vec(envs, paddock.IN_PROCESS, **kw)
     env.reset(seed=0)

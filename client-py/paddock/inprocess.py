@@ -88,7 +88,8 @@ def find_library() -> str:
     )
 
 
-_LIB: ctypes.CDLL | None = None
+# the libraries loaded so far, by path: one per file (each its own copy of the simulator)
+_LIBS: dict[str, ctypes.CDLL] = {}
 _LIB_LOCK = threading.Lock()
 # The process that first stepped through the library, and whether this process is a
 # fork of it: the library's thread pool does not survive fork (its threads are gone in
@@ -116,11 +117,12 @@ def _check_not_forked() -> None:
 
 
 def _library() -> ctypes.CDLL:
-    """The library, loaded once per process, its ABI version checked."""
-    global _LIB
+    """The library :func:`find_library` names now, loaded once per file (a session made
+    after ``$PADDOCK_EMBED_LIB`` names another file runs that one), its ABI version
+    checked."""
+    path = find_library()
     with _LIB_LOCK:
-        if _LIB is None:
-            path = find_library()
+        if path not in _LIBS:
             try:
                 lib = ctypes.CDLL(path)
             except OSError as e:
@@ -143,8 +145,8 @@ def _library() -> ctypes.CDLL:
             lib.paddock_embed_frames.restype = ctypes.c_size_t
             lib.paddock_embed_frames.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p),
                                                  ctypes.POINTER(ctypes.c_size_t), ctypes.c_size_t]
-            _LIB = lib
-        return _LIB
+            _LIBS[path] = lib
+        return _LIBS[path]
 
 
 class Frame:

@@ -171,3 +171,34 @@ def test_a_fork_after_stepping_is_told_to_spawn_instead_of_hanging() -> None:
         env.step(np.zeros((2, 2), dtype=np.float32))
     finally:
         env.close()
+
+
+def test_each_library_file_is_its_own_simulator(tmp_path: Path, monkeypatch) -> None:
+    """A session made after ``$PADDOCK_EMBED_LIB`` names another file runs that file's
+    copy of the simulator; sessions made before keep theirs, and both step alike."""
+    from paddock.inprocess import find_library
+    lib = Path(find_library())
+    copy = tmp_path / lib.name
+    shutil.copy(lib, copy)
+    first = InProcess()
+    monkeypatch.setenv("PADDOCK_EMBED_LIB", str(copy))
+    second = InProcess()
+    monkeypatch.setenv("PADDOCK_EMBED_LIB", str(lib))
+    third = InProcess()
+    try:
+        assert second._lib is not first._lib
+        assert third._lib is first._lib
+        assert second._lib._name == str(copy)
+    finally:
+        for c in (first, second, third):
+            c.close()
+    a = rollout(paddock.IN_PROCESS, 2, 5, num_beams=1080)
+    monkeypatch.setenv("PADDOCK_EMBED_LIB", str(copy))
+    b = rollout(paddock.IN_PROCESS, 2, 5, num_beams=1080)
+    for x, y in zip(a, b):
+        for u, v in zip(x, y):
+            if isinstance(u, dict):
+                for k in u:
+                    np.testing.assert_array_equal(u[k], v[k], err_msg=k)
+            else:
+                np.testing.assert_array_equal(u, v)
