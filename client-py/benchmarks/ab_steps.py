@@ -30,7 +30,6 @@ import math
 import os
 import signal
 import statistics
-import sys
 import time
 
 import numpy as np
@@ -144,4 +143,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    sys.exit(0 if main() else 1)
+    main()
