@@ -38,6 +38,12 @@ pub(crate) struct WallFaces {
     pub line: Vec<f32>,
     pub lo: Vec<f32>,
     pub hi: Vec<f32>,
+    /// The blocks that have faces, as bits: row `by`'s blocks `bx` in the words
+    /// `rows[by * row_words..]` (bit `bx % 64` of word `bx / 64`), column `bx`'s blocks
+    /// `by` in `cols[bx * col_words..]`; so that the sweep's ring walk visits only those
+    /// (one branch per set bit and per row or column instead of one per block).
+    pub rows: Vec<u64>,
+    pub cols: Vec<u64>,
 }
 
 /// At most this many runs per map (the real tracks of `shared/maps` have 20-41 thousand):
@@ -180,10 +186,14 @@ impl FaceSets {
     }
 
     /// The bytes these faces hold: the runs (12 bytes each, and three of padding per set),
-    /// each set's index of its blocks' runs, and the grid of each cell's set.
+    /// each set's index of its blocks' runs and bits of its blocks with faces, and the
+    /// grid of each cell's set.
     #[cfg(test)]
     pub(crate) fn bytes(&self) -> usize {
-        let set = |f: &WallFaces| 4 * (f.start.len() + f.line.len() + f.lo.len() + f.hi.len());
+        let set = |f: &WallFaces| {
+            4 * (f.start.len() + f.line.len() + f.lo.len() + f.hi.len())
+                + 8 * (f.rows.len() + f.cols.len())
+        };
         self.set_of.len() + self.sets.iter().map(set).sum::<usize>()
     }
 
@@ -312,6 +322,7 @@ impl WallFaces {
         for v in [&mut line, &mut lo, &mut hi] {
             v.extend([0.0; 3]);
         }
+        let (rows, cols) = block_bits(blocks_x, blocks_y, &start);
         WallFaces {
             blocks_x,
             blocks_y,
@@ -319,7 +330,36 @@ impl WallFaces {
             line,
             lo,
             hi,
+            rows,
+            cols,
         }
+    }
+
+    /// Words per row of [`WallFaces::rows`] and per column of [`WallFaces::cols`].
+    #[inline(always)]
+    pub(crate) fn row_words(&self) -> usize {
+        self.blocks_x.div_ceil(64)
+    }
+
+    #[inline(always)]
+    pub(crate) fn col_words(&self) -> usize {
+        self.blocks_y.div_ceil(64)
+    }
+
+    /// The blocks `bx` in `x0..=x1` of row `by` that have faces, in increasing order
+    /// (`x0 <= x1 < blocks_x`, `by < blocks_y`).
+    #[inline(always)]
+    pub(crate) fn row_blocks(&self, by: usize, x0: usize, x1: usize) -> SetBits<'_> {
+        let w = self.row_words();
+        SetBits::new(&self.rows[by * w..(by + 1) * w], x0, x1)
+    }
+
+    /// The blocks `by` in `y0..=y1` of column `bx` that have faces, in increasing order
+    /// (`y0 <= y1 < blocks_y`, `bx < blocks_x`).
+    #[inline(always)]
+    pub(crate) fn col_blocks(&self, bx: usize, y0: usize, y1: usize) -> SetBits<'_> {
+        let w = self.col_words();
+        SetBits::new(&self.cols[bx * w..(bx + 1) * w], y0, y1)
     }
 
     /// The runs of block (bx, by) facing `side`, as a range of run indices.
@@ -334,6 +374,76 @@ impl WallFaces {
     pub(crate) fn block_empty(&self, bx: usize, by: usize) -> bool {
         let k = 4 * (by * self.blocks_x + bx);
         self.start[k] == self.start[k + 4]
+    }
+}
+
+/// [`WallFaces::rows`] and [`WallFaces::cols`] of the blocks whose runs `start` (see
+/// [`WallFaces::start`]) holds.
+pub(crate) fn block_bits(blocks_x: usize, blocks_y: usize, start: &[u32]) -> (Vec<u64>, Vec<u64>) {
+    let (row_words, col_words) = (blocks_x.div_ceil(64), blocks_y.div_ceil(64));
+    let mut rows = vec![0u64; blocks_y * row_words];
+    let mut cols = vec![0u64; blocks_x * col_words];
+    for by in 0..blocks_y {
+        for bx in 0..blocks_x {
+            let k = 4 * (by * blocks_x + bx);
+            if start[k] != start[k + 4] {
+                rows[by * row_words + bx / 64] |= 1 << (bx % 64);
+                cols[bx * col_words + by / 64] |= 1 << (by % 64);
+            }
+        }
+    }
+    (rows, cols)
+}
+
+/// The set bits at `lo..=hi` of a bit set held in words (bit `i % 64` of word `i / 64`),
+/// in increasing order.
+pub(crate) struct SetBits<'a> {
+    words: &'a [u64],
+    /// The word being read, its bits below the next one cleared, and its index.
+    bits: u64,
+    word: usize,
+    /// The last word and its bits at or below `hi`.
+    last: usize,
+    last_mask: u64,
+}
+
+impl<'a> SetBits<'a> {
+    #[inline(always)]
+    fn new(words: &'a [u64], lo: usize, hi: usize) -> SetBits<'a> {
+        let (word, last) = (lo / 64, hi / 64);
+        let last_mask = u64::MAX >> (63 - hi % 64);
+        let mut bits = words[word] & (u64::MAX << (lo % 64));
+        if word == last {
+            bits &= last_mask;
+        }
+        SetBits {
+            words,
+            bits,
+            word,
+            last,
+            last_mask,
+        }
+    }
+}
+
+impl Iterator for SetBits<'_> {
+    type Item = usize;
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<usize> {
+        while self.bits == 0 {
+            if self.word >= self.last {
+                return None;
+            }
+            self.word += 1;
+            self.bits = self.words[self.word];
+            if self.word == self.last {
+                self.bits &= self.last_mask;
+            }
+        }
+        let i = 64 * self.word + self.bits.trailing_zeros() as usize;
+        self.bits &= self.bits - 1;
+        Some(i)
     }
 }
 
@@ -469,7 +579,8 @@ mod tests {
         let sets = FaceSets::new(w, h, &occ).unwrap();
         assert_eq!(sets.sets().len(), 2);
         let runs: usize = sets.sets().iter().map(|f| f.line.len() - 3).sum();
-        let index = 4 * (4 * w.div_ceil(BLOCK) * h.div_ceil(BLOCK) + 1);
+        let (bw, bh) = (w.div_ceil(BLOCK), h.div_ceil(BLOCK));
+        let index = 4 * (4 * bw * bh + 1) + 8 * (bh * bw.div_ceil(64) + bw * bh.div_ceil(64));
         assert_eq!(sets.bytes(), w * h + 12 * (runs + 6) + 2 * index);
         assert!(!std::ptr::eq(sets.at(150, 100), sets.at(0, 0)));
         // The same wall cut in two arcs: one region, no grid.
@@ -481,6 +592,61 @@ mod tests {
         assert!(std::ptr::eq(sets.at(150, 100), sets.at(0, 0)));
         let runs = sets.sets()[0].line.len() - 3;
         assert_eq!(sets.bytes(), 12 * (runs + 3) + index);
+    }
+
+    #[test]
+    fn the_blocks_with_faces_are_found_by_row_and_by_column() {
+        // 70 x 130 blocks (two words per row, three per column), about one block in
+        // five with faces.
+        let (bw, bh) = (70, 130);
+        let mut rng = crate::rng::Rng::new(5);
+        let mut start = vec![0u32; 4 * bw * bh + 1];
+        for k in 0..4 * bw * bh {
+            start[k + 1] = start[k] + u32::from(rng.below(20) == 0);
+        }
+        let (rows, cols) = block_bits(bw, bh, &start);
+        let f = WallFaces {
+            blocks_x: bw,
+            blocks_y: bh,
+            start,
+            line: vec![],
+            lo: vec![],
+            hi: vec![],
+            rows,
+            cols,
+        };
+        for _ in 0..3000 {
+            let (by, bx) = (rng.below(bh as u64) as usize, rng.below(bw as u64) as usize);
+            let (a, b) = (rng.below(bw as u64) as usize, rng.below(bw as u64) as usize);
+            let (x0, x1) = (a.min(b), a.max(b));
+            let want: Vec<usize> = (x0..=x1).filter(|&x| !f.block_empty(x, by)).collect();
+            assert_eq!(
+                f.row_blocks(by, x0, x1).collect::<Vec<_>>(),
+                want,
+                "row {by}, {x0}..={x1}"
+            );
+            let (a, b) = (rng.below(bh as u64) as usize, rng.below(bh as u64) as usize);
+            let (y0, y1) = (a.min(b), a.max(b));
+            let want: Vec<usize> = (y0..=y1).filter(|&y| !f.block_empty(bx, y)).collect();
+            assert_eq!(
+                f.col_blocks(bx, y0, y1).collect::<Vec<_>>(),
+                want,
+                "column {bx}, {y0}..={y1}"
+            );
+        }
+        // whole rows and columns, and the ends of words
+        for by in 0..bh {
+            let want: Vec<usize> = (0..bw).filter(|&x| !f.block_empty(x, by)).collect();
+            assert_eq!(f.row_blocks(by, 0, bw - 1).collect::<Vec<_>>(), want);
+            for x in [0, 63, 64, bw - 1] {
+                let got: Vec<usize> = f.row_blocks(by, x, x).collect();
+                assert_eq!(got.is_empty(), f.block_empty(x, by));
+            }
+        }
+        for bx in 0..bw {
+            let want: Vec<usize> = (0..bh).filter(|&y| !f.block_empty(bx, y)).collect();
+            assert_eq!(f.col_blocks(bx, 0, bh - 1).collect::<Vec<_>>(), want);
+        }
     }
 
     /// The free regions of a grid by a flood fill across sides and corners: per cell its

@@ -281,10 +281,14 @@ fn a_sides_runs_are_narrowed_to_those_ahead_and_within_reach() {
         let m = rng.below(40) as usize;
         let mut lines: Vec<f32> = (0..m).map(|_| rng.below(200) as f32).collect();
         lines.sort_by(f32::total_cmp);
+        let start = vec![0, m as u32, m as u32, m as u32, m as u32];
+        let (rows, cols) = crate::map::faces::block_bits(1, 1, &start);
         let faces = WallFaces {
             blocks_x: 1,
             blocks_y: 1,
-            start: vec![0, m as u32, m as u32, m as u32, m as u32],
+            rows,
+            cols,
+            start,
             lo: vec![0.0; m + 3],
             hi: vec![1.0; m + 3],
             line: lines.iter().copied().chain([0.0; 3]).collect(),
