@@ -536,6 +536,29 @@ fn sweep_gives_the_march_bits_and_leaves_corner_crossings_to_it() {
             }
         }
     }
+    // Maps more than 64 blocks of 64 cells across or along (the ring walk reads each
+    // ring's blocks with faces off words of 64 blocks), scanned from near the first
+    // word's end so that rings straddle it.
+    let lidar = Lidar::new(LidarConfig::default());
+    for (w, h) in [(4400, 96), (96, 4400)] {
+        let mut g = vec![false; w * h];
+        for cell in g.iter_mut() {
+            *cell = rng.uniform() < 0.002;
+        }
+        let map = Map::from_grid("wide", w, h, 0.05, Pose::new(0.0, 0.0, 0.0), g).unwrap();
+        for _ in 0..12 {
+            let along = rng.uniform_range(3900.0, 4300.0);
+            let across = rng.uniform_range(1.0, 95.0);
+            let (gx, gy) = if w > h {
+                (along, across)
+            } else {
+                (across, along)
+            };
+            let (x, y) = map.grid_to_world(gx, gy);
+            let pose = Pose::new(x, y, rng.uniform_range(-4.0, 4.0));
+            check(&lidar, &map, pose, &[], "map of more than 64 blocks");
+        }
+    }
     let circuit = crate::circuit::Circuits::new().default_circuit().unwrap();
     let (map, track) = (&circuit.map, &circuit.track);
     let (w, h) = (map.width() as f64, map.height() as f64);
