@@ -369,8 +369,9 @@ impl WallFaces {
         self.start[k] as usize..self.start[k + 1] as usize
     }
 
-    /// Whether block (bx, by) has no faces.
-    #[inline(always)]
+    /// Whether block (bx, by) has no faces (the sweep reads [`WallFaces::rows`] and
+    /// [`WallFaces::cols`] instead; the tests check those against this).
+    #[cfg(test)]
     pub(crate) fn block_empty(&self, bx: usize, by: usize) -> bool {
         let k = 4 * (by * self.blocks_x + bx);
         self.start[k] == self.start[k + 4]

@@ -438,49 +438,28 @@ impl Sweep {
                 break;
             }
             self.stamp = self.serial << 16 | (k as u64 & 0xffff);
-            if k == 0 {
-                self.visit::<AVX>(faces, ox, oy, gx, gy, fan, reach);
-            } else {
-                // The ring's blocks with faces, by the bits of its two rows and two
-                // columns within the map.
-                let (x0, x1) = ((ox - k).max(0), (ox + k).min(bw - 1));
-                for by in [oy - k, oy + k] {
-                    if (0..bh).contains(&by) {
-                        for bx in faces.row_blocks(by as usize, x0 as usize, x1 as usize) {
-                            self.block::<AVX>(faces, bx, by as usize, gx, gy, fan, reach);
-                        }
+            // The ring's blocks with faces, by the bits of its two rows (one, the origin's
+            // block, for ring 0) and two columns within the map.
+            let rows: &[isize] = if k == 0 { &[oy] } else { &[oy - k, oy + k] };
+            let (x0, x1) = ((ox - k).max(0), (ox + k).min(bw - 1));
+            for &by in rows {
+                if (0..bh).contains(&by) {
+                    for bx in faces.row_blocks(by as usize, x0 as usize, x1 as usize) {
+                        self.block::<AVX>(faces, bx, by as usize, gx, gy, fan, reach);
                     }
                 }
-                let (y0, y1) = ((oy - k + 1).max(0), (oy + k - 1).min(bh - 1));
-                if y0 <= y1 {
-                    for bx in [ox - k, ox + k] {
-                        if (0..bw).contains(&bx) {
-                            for by in faces.col_blocks(bx as usize, y0 as usize, y1 as usize) {
-                                self.block::<AVX>(faces, bx as usize, by, gx, gy, fan, reach);
-                            }
+            }
+            let (y0, y1) = ((oy - k + 1).max(0), (oy + k - 1).min(bh - 1));
+            if y0 <= y1 {
+                for bx in [ox - k, ox + k] {
+                    if (0..bw).contains(&bx) {
+                        for by in faces.col_blocks(bx as usize, y0 as usize, y1 as usize) {
+                            self.block::<AVX>(faces, bx as usize, by, gx, gy, fan, reach);
                         }
                     }
                 }
             }
             reach = self.reach::<AVX>();
-        }
-    }
-
-    /// [`Sweep::block`] on block (bx, by) if it is on the map.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn visit<const AVX: bool>(
-        &mut self,
-        faces: &WallFaces,
-        bx: isize,
-        by: isize,
-        gx: f64,
-        gy: f64,
-        fan: &Fan,
-        reach: f64,
-    ) {
-        if bx >= 0 && by >= 0 && (bx as usize) < faces.blocks_x && (by as usize) < faces.blocks_y {
-            self.block::<AVX>(faces, bx as usize, by as usize, gx, gy, fan, reach);
         }
     }
 
@@ -505,8 +484,8 @@ impl Sweep {
         max_of::<AVX>(0.0, &self.group_max)
     }
 
-    /// One block: culled by distance, then its runs crossed with the beams that can see
-    /// it.
+    /// One block with faces: culled by distance, then its runs crossed with the beams
+    /// that can see it.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn block<const AVX: bool>(
@@ -519,9 +498,6 @@ impl Sweep {
         fan: &Fan,
         reach: f64,
     ) {
-        if faces.block_empty(bx, by) {
-            return;
-        }
         let (x0, y0) = ((bx * BLOCK) as f64, (by * BLOCK) as f64);
         let (x1, y1) = (x0 + BLOCK as f64, y0 + BLOCK as f64);
         let ex = (x0 - gx).max(gx - x1).max(0.0);
