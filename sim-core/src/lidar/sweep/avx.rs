@@ -191,7 +191,7 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
     }
 }
 
-/// The per-beam arrays `super::Beams::prepare` reads and fills, for [`prepare4`] (called
+/// The per-beam arrays `super::beams::Beams::prepare` reads and fills, for [`prepare4`] (called
 /// once per batch of the noise's draws, where slices' bounds checks each time cost more
 /// than the work).
 #[derive(Clone, Copy)]
@@ -210,7 +210,7 @@ pub(super) struct BeamPtrs {
     pub start: f64,
 }
 
-/// `super::Beams::prepare` for beams `j..j + 4`: their directions in the grid frame (the
+/// `super::beams::Beams::prepare` for beams `j..j + 4`: their directions in the grid frame (the
 /// beams' `bc`, `bs` turned by the heading's `gc`, `gs`), the inverses of those and their
 /// first ranges, the same operations lane by lane, so the same bits (-0.0 made 0.0 as
 /// there).
