@@ -366,13 +366,26 @@ impl Rng {
                 k += BATCH;
                 continue;
             }
-            let mut vals = [0.0; BATCH];
-            for (h, x) in xs.iter().enumerate() {
-                // SAFETY: four of the batch's values.
-                unsafe { _mm256_storeu_pd(vals.as_mut_ptr().add(4 * h), *x) };
-            }
-            for l in 0..kept {
-                put::<ADD>(&mut out[k + l], mean + std * vals[l]);
+            if ADD {
+                let mut vals = [0.0; BATCH];
+                for (h, x) in xs.iter().enumerate() {
+                    // SAFETY: four of the batch's values.
+                    unsafe { _mm256_storeu_pd(vals.as_mut_ptr().add(4 * h), *x) };
+                }
+                for l in 0..kept {
+                    put::<ADD>(&mut out[k + l], mean + std * vals[l]);
+                }
+            } else {
+                // The whole batch's places set as a full batch sets them, without a loop
+                // over the kept values: those past them are set again below and by the
+                // draws that follow, every place from k + kept on being drawn in order.
+                for (h, x) in xs.iter().enumerate() {
+                    // SAFETY: k + BATCH <= out.len().
+                    unsafe {
+                        let at = out.as_mut_ptr().add(k + 4 * h);
+                        _mm256_storeu_pd(at, _mm256_add_pd(vmean, _mm256_mul_pd(vstd, *x)));
+                    }
+                }
             }
             // The state just after the draw that left its core, then its slow path.
             s = start;
@@ -490,6 +503,20 @@ mod tests {
                 );
             }
             assert_eq!(a, b, "seed {seed}: state after {len} values");
+            // Set rather than added (a batch cut short by a slow draw sets its places past
+            // the draw too, which the draws after it set again): added later, the same bits.
+            let mut d = Rng::new(seed);
+            let mut set = vec![f64::NAN; len];
+            d.normals_alongside(&mut set, 0.25, 2.0, || {});
+            for k in 0..len {
+                let sum = 1.5 + set[k];
+                assert_eq!(
+                    sum.to_bits(),
+                    want[k].to_bits(),
+                    "seed {seed}, set value {k}"
+                );
+            }
+            assert_eq!(d, b, "seed {seed}: state after {len} values set");
             // Where the first draws of the first batch and of the last few leave their core.
             let mut c = Rng::new(seed);
             let first = (0..len).find(|_| {
