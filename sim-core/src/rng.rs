@@ -349,20 +349,27 @@ impl Rng {
                     break;
                 }
             }
-            if kept == BATCH {
-                for (h, x) in xs.iter().enumerate() {
-                    // SAFETY: k + BATCH <= out.len().
-                    unsafe {
-                        let at = out.as_mut_ptr().add(k + 4 * h);
-                        let noisy = _mm256_add_pd(vmean, _mm256_mul_pd(vstd, *x));
-                        let v = if ADD {
-                            _mm256_add_pd(_mm256_loadu_pd(at), noisy)
-                        } else {
-                            noisy
-                        };
-                        _mm256_storeu_pd(at, v);
+            // The batch's places from its two vectors (a macro: the same code in both
+            // branches below, each compiled in its place).
+            macro_rules! store_batch {
+                () => {
+                    for (h, x) in xs.iter().enumerate() {
+                        // SAFETY: k + BATCH <= out.len().
+                        unsafe {
+                            let at = out.as_mut_ptr().add(k + 4 * h);
+                            let noisy = _mm256_add_pd(vmean, _mm256_mul_pd(vstd, *x));
+                            let v = if ADD {
+                                _mm256_add_pd(_mm256_loadu_pd(at), noisy)
+                            } else {
+                                noisy
+                            };
+                            _mm256_storeu_pd(at, v);
+                        }
                     }
-                }
+                };
+            }
+            if kept == BATCH {
+                store_batch!();
                 k += BATCH;
                 continue;
             }
@@ -376,16 +383,10 @@ impl Rng {
                     put::<ADD>(&mut out[k + l], mean + std * vals[l]);
                 }
             } else {
-                // The whole batch's places set as a full batch sets them, without a loop
-                // over the kept values: those past them are set again below and by the
-                // draws that follow, every place from k + kept on being drawn in order.
-                for (h, x) in xs.iter().enumerate() {
-                    // SAFETY: k + BATCH <= out.len().
-                    unsafe {
-                        let at = out.as_mut_ptr().add(k + 4 * h);
-                        _mm256_storeu_pd(at, _mm256_add_pd(vmean, _mm256_mul_pd(vstd, *x)));
-                    }
-                }
+                // Set as a whole batch, without a loop over the kept values (its exit
+                // mispredicted): the places from the slow draw on are set again below and
+                // by the draws that follow, every place from there being drawn in order.
+                store_batch!();
             }
             // The state just after the draw that left its core, then its slow path.
             s = start;

@@ -39,9 +39,9 @@ pub(crate) struct WallFaces {
     pub lo: Vec<f32>,
     pub hi: Vec<f32>,
     /// The blocks that have faces, as bits: row `by`'s blocks `bx` in the words
-    /// `rows[by * row_words..]` (bit `bx % 64` of word `bx / 64`), column `bx`'s blocks
-    /// `by` in `cols[bx * col_words..]`; so that the sweep's ring walk visits only those
-    /// (one branch per set bit and per row or column instead of one per block).
+    /// `rows[by * w..]`, `w = blocks_x.div_ceil(64)` (bit `bx % 64` of word `bx / 64`),
+    /// column `bx`'s blocks `by` likewise in `cols`; so that the sweep's ring walk visits
+    /// only those (one branch per set bit and per row or column instead of one per block).
     pub rows: Vec<u64>,
     pub cols: Vec<u64>,
 }
@@ -335,31 +335,18 @@ impl WallFaces {
         }
     }
 
-    /// Words per row of [`WallFaces::rows`] and per column of [`WallFaces::cols`].
-    #[inline(always)]
-    pub(crate) fn row_words(&self) -> usize {
-        self.blocks_x.div_ceil(64)
-    }
-
-    #[inline(always)]
-    pub(crate) fn col_words(&self) -> usize {
-        self.blocks_y.div_ceil(64)
-    }
-
     /// The blocks `bx` in `x0..=x1` of row `by` that have faces, in increasing order
     /// (`x0 <= x1 < blocks_x`, `by < blocks_y`).
     #[inline(always)]
     pub(crate) fn row_blocks(&self, by: usize, x0: usize, x1: usize) -> SetBits<'_> {
-        let w = self.row_words();
-        SetBits::new(&self.rows[by * w..(by + 1) * w], x0, x1)
+        SetBits::of_line(&self.rows, self.blocks_x, by, x0, x1)
     }
 
     /// The blocks `by` in `y0..=y1` of column `bx` that have faces, in increasing order
     /// (`y0 <= y1 < blocks_y`, `bx < blocks_x`).
     #[inline(always)]
     pub(crate) fn col_blocks(&self, bx: usize, y0: usize, y1: usize) -> SetBits<'_> {
-        let w = self.col_words();
-        SetBits::new(&self.cols[bx * w..(bx + 1) * w], y0, y1)
+        SetBits::of_line(&self.cols, self.blocks_y, bx, y0, y1)
     }
 
     /// The runs of block (bx, by) facing `side`, as a range of run indices.
@@ -409,6 +396,14 @@ pub(crate) struct SetBits<'a> {
 }
 
 impl<'a> SetBits<'a> {
+    /// The set bits at `lo..=hi` of line `line` of `lines` (rows or columns of `len`
+    /// bits each, every line in whole words).
+    #[inline(always)]
+    fn of_line(lines: &'a [u64], len: usize, line: usize, lo: usize, hi: usize) -> Self {
+        let w = len.div_ceil(64);
+        SetBits::new(&lines[line * w..(line + 1) * w], lo, hi)
+    }
+
     #[inline(always)]
     fn new(words: &'a [u64], lo: usize, hi: usize) -> SetBits<'a> {
         let (word, last) = (lo / 64, hi / 64);

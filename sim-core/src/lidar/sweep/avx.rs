@@ -435,68 +435,68 @@ pub(super) unsafe fn cross_runs(
     let zero = _mm256_setzero_pd();
     let mut flagged = false;
     let inf = _mm256_set1_pd(f64::INFINITY);
-    // (A macro: a closure here is compiled as a function of its own, without inlining.)
+    // (Macros: a closure here is compiled as a function of its own, without inlining.)
+    // One lane of four beams from beam i, against the run whose values are broadcast in
+    // `dl`, `off`, `half_out` and `half_in`.
+    macro_rules! lane {
+        ($i:expr, $dl:expr, $off:expr, $half_out:expr, $half_in:expr) => {{
+            let i: usize = $i;
+            // SAFETY: i + 4 <= end <= the length of every array (checked by `one!`).
+            unsafe {
+                let t = _mm256_mul_pd($dl, _mm256_loadu_pd(inv.as_ptr().add(i)));
+                // The crossing's place along the line from the run's middle.
+                let rel = _mm256_add_pd(
+                    _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))),
+                    $off,
+                );
+                let b = _mm256_loadu_pd(best.as_ptr().add(i));
+                // On the run and ahead; a hit is such a crossing nearer than `b`, but the
+                // minimum below needs no test of that, and the flags test it only in
+                // their rare branch.
+                let d = _mm256_andnot_pd(sign, rel);
+                let on = _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
+                    _mm256_cmp_pd::<_CMP_LE_OQ>(d, $half_out),
+                );
+                let near = _mm256_cmp_pd::<_CMP_GT_OQ>(d, $half_in);
+                // min(b, on ? t : inf) is b, or t where t < b (a hit); as a blend the
+                // compiler would make it a masked store, which is slow on AMD CPUs and
+                // stalls the next run's loads.
+                let tm = _mm256_blendv_pd(inf, t, on);
+                _mm256_storeu_pd(best.as_mut_ptr().add(i), _mm256_min_pd(b, tm));
+                let set = _mm256_movemask_pd(_mm256_and_pd(on, near));
+                if set != 0 {
+                    // A hit near an end of the run: flagged.
+                    let set = set & _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LT_OQ>(t, b));
+                    flagged |= set != 0;
+                    for l in 0..LANES {
+                        if set & (1 << l) != 0 {
+                            flag[i + l] = 1.0;
+                        }
+                    }
+                }
+            }
+        }};
+    }
+    // Run j with its lanes: two at least (see `beams_of_runs`), those two without a
+    // loop's branches, the rest, if any, in a loop (about 1 % fewer instructions a scan,
+    // a twentieth of the crossings' branches).
     macro_rules! one {
         ($j:expr) => {{
             let j: usize = $j;
             let (start, end) = (from[j] as usize, to[j] as usize);
-            assert!(end <= n, "beams {start}..{end} of {n}");
+            assert!(
+                start + 2 * LANES <= end && end <= n,
+                "beams {start}..{end} of {n}: two lanes at least, within the beams"
+            );
             let dl = _mm256_set1_pd(dl[j]);
             let off = _mm256_set1_pd(off[j]);
             let (half_out, half_in) = (_mm256_set1_pd(half_out[j]), _mm256_set1_pd(half_in[j]));
-            assert!(
-                start + 2 * LANES <= end,
-                "beams {start}..{end}: fewer than two lanes"
-            );
-            // One lane of four beams from beam i.
-            macro_rules! lane {
-                ($i:expr) => {{
-                    let i: usize = $i;
-                    // SAFETY: i + 4 <= end <= the length of every array.
-                    unsafe {
-                        let t = _mm256_mul_pd(dl, _mm256_loadu_pd(inv.as_ptr().add(i)));
-                        // The crossing's place along the line from the run's middle.
-                        let rel = _mm256_add_pd(
-                            _mm256_mul_pd(t, _mm256_loadu_pd(along.as_ptr().add(i))),
-                            off,
-                        );
-                        let b = _mm256_loadu_pd(best.as_ptr().add(i));
-                        // On the run and ahead; a hit is such a crossing nearer than `b`,
-                        // but the minimum below needs no test of that, and the flags test
-                        // it only in their rare branch.
-                        let d = _mm256_andnot_pd(sign, rel);
-                        let on = _mm256_and_pd(
-                            _mm256_cmp_pd::<_CMP_GT_OQ>(t, zero),
-                            _mm256_cmp_pd::<_CMP_LE_OQ>(d, half_out),
-                        );
-                        let near = _mm256_cmp_pd::<_CMP_GT_OQ>(d, half_in);
-                        // min(b, on ? t : inf) is b, or t where t < b (a hit); as a blend
-                        // the compiler would make it a masked store, which is slow on AMD
-                        // CPUs and stalls the next run's loads.
-                        let tm = _mm256_blendv_pd(inf, t, on);
-                        _mm256_storeu_pd(best.as_mut_ptr().add(i), _mm256_min_pd(b, tm));
-                        let set = _mm256_movemask_pd(_mm256_and_pd(on, near));
-                        if set != 0 {
-                            // A hit near an end of the run: flagged.
-                            let set = set & _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LT_OQ>(t, b));
-                            flagged |= set != 0;
-                            for l in 0..LANES {
-                                if set & (1 << l) != 0 {
-                                    flag[i + l] = 1.0;
-                                }
-                            }
-                        }
-                    }
-                }};
-            }
-            // Every run has two lanes at least (see `beams_of_runs`): those two without a
-            // loop's branches, the rest, if any, in a loop (about 1 % fewer instructions
-            // a scan, a twentieth of the crossings' branches).
-            lane!(start);
-            lane!(start + LANES);
+            lane!(start, dl, off, half_out, half_in);
+            lane!(start + LANES, dl, off, half_out, half_in);
             let mut i = start + 2 * LANES;
             while i < end {
-                lane!(i);
+                lane!(i, dl, off, half_out, half_in);
                 i += LANES;
             }
         }};
