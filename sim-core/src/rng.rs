@@ -490,12 +490,13 @@ mod tests {
         let z = ziggurat();
         let mut places = [0usize; 8];
         let mut in_tail = 0;
+        let (base, mean, std) = (1.5, 0.25, 2.0);
         for seed in 0..3000 {
             let len = 8 + (seed as usize % 17);
             let (mut a, mut b) = (Rng::new(seed), Rng::new(seed));
-            let (mut got, mut want) = (vec![1.5; len], vec![1.5; len]);
-            a.add_normal(&mut got, 0.25, 2.0);
-            b.add_normal_scalar(&mut want, 0.25, 2.0);
+            let (mut got, mut want) = (vec![base; len], vec![base; len]);
+            a.add_normal(&mut got, mean, std);
+            b.add_normal_scalar(&mut want, mean, std);
             for k in 0..len {
                 assert_eq!(
                     got[k].to_bits(),
@@ -508,9 +509,9 @@ mod tests {
             // the draw too, which the draws after it set again): added later, the same bits.
             let mut d = Rng::new(seed);
             let mut set = vec![f64::NAN; len];
-            d.normals_alongside(&mut set, 0.25, 2.0, || {});
+            d.normals_alongside(&mut set, mean, std, || {});
             for k in 0..len {
-                let sum = 1.5 + set[k];
+                let sum = base + set[k];
                 assert_eq!(
                     sum.to_bits(),
                     want[k].to_bits(),
