@@ -191,7 +191,7 @@ pub(super) unsafe fn beams_of_runs<const VERTICAL: bool>(
     }
 }
 
-/// The per-beam arrays `super::beams::Beams::prepare` reads and fills, for [`prepare4`] (called
+/// The per-beam arrays `super::beams::Beams::prepare` reads and fills, for [`prepare8`] (called
 /// once per batch of the noise's draws, where slices' bounds checks each time cost more
 /// than the work).
 #[derive(Clone, Copy)]
@@ -210,41 +210,52 @@ pub(super) struct BeamPtrs {
     pub start: f64,
 }
 
-/// `super::beams::Beams::prepare` for beams `j..j + 4`: their directions in the grid frame (the
+/// `super::beams::Beams::prepare` for beams `j..j + 8`: their directions in the grid frame (the
 /// beams' `bc`, `bs` turned by the heading's `gc`, `gs`), the inverses of those and their
-/// first ranges, the same operations lane by lane, so the same bits (-0.0 made 0.0 as
-/// there).
+/// first ranges, four beams per instruction with the same operations lane by lane, so the
+/// same bits (-0.0 made 0.0 as there). Each array's eight values are stored together, so
+/// that its pointer is read once (in the noise's loop, where this is inlined, the pointers
+/// live on the stack: there are more of them than free registers).
 ///
 /// # Safety
-/// The CPU must support AVX; every array of `beams` holds at least `j + 4` values.
+/// The CPU must support AVX; every array of `beams` holds at least `j + 8` values.
 #[target_feature(enable = "avx")]
 #[inline]
-pub(super) unsafe fn prepare4(gc: f64, gs: f64, beams: &BeamPtrs, j: usize) {
+pub(super) unsafe fn prepare8(gc: f64, gs: f64, beams: &BeamPtrs, j: usize) {
     let (gc, gs) = (_mm256_set1_pd(gc), _mm256_set1_pd(gs));
     let (zero, one) = (_mm256_setzero_pd(), _mm256_set1_pd(1.0));
-    // SAFETY: the CPU has AVX, and the arrays hold beams j..j + 4 (this function's
+    // +-0.0 -> 0.0
+    let signless = |v| _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(v, zero), v);
+    // SAFETY: the CPU has AVX, and the arrays hold beams j..j + 8 (this function's
     // contract).
     unsafe {
-        let (c, s) = (
-            _mm256_loadu_pd(beams.bc.add(j)),
-            _mm256_loadu_pd(beams.bs.add(j)),
-        );
-        let x = _mm256_sub_pd(_mm256_mul_pd(gc, c), _mm256_mul_pd(gs, s));
-        let y = _mm256_add_pd(_mm256_mul_pd(gs, c), _mm256_mul_pd(gc, s));
-        // +-0.0 -> 0.0
-        let x = _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(x, zero), x);
-        let y = _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(y, zero), y);
-        _mm256_storeu_pd(beams.dx.add(j), x);
-        _mm256_storeu_pd(beams.dy.add(j), y);
-        _mm256_storeu_pd(beams.inv_dx.add(j), _mm256_div_pd(one, x));
-        _mm256_storeu_pd(beams.inv_dy.add(j), _mm256_div_pd(one, y));
-        let best = if beams.limit.is_null() {
-            _mm256_set1_pd(beams.start)
-        } else {
-            let limit = _mm256_loadu_pd(beams.limit.add(j));
-            _mm256_add_pd(_mm256_mul_pd(limit, _mm256_set1_pd(beams.inv_res)), one)
+        let load = |p: *const f64| (_mm256_loadu_pd(p.add(j)), _mm256_loadu_pd(p.add(j + 4)));
+        let store = |p: *mut f64, (a, b): (__m256d, __m256d)| {
+            _mm256_storeu_pd(p.add(j), a);
+            _mm256_storeu_pd(p.add(j + 4), b);
         };
-        _mm256_storeu_pd(beams.best.add(j), best);
+        let (c, s) = (load(beams.bc), load(beams.bs));
+        let turn = |c, s| {
+            let x = _mm256_sub_pd(_mm256_mul_pd(gc, c), _mm256_mul_pd(gs, s));
+            let y = _mm256_add_pd(_mm256_mul_pd(gs, c), _mm256_mul_pd(gc, s));
+            (signless(x), signless(y))
+        };
+        let ((x0, y0), (x1, y1)) = (turn(c.0, s.0), turn(c.1, s.1));
+        store(beams.dx, (x0, x1));
+        store(beams.dy, (y0, y1));
+        let inv = |v| _mm256_div_pd(one, v);
+        store(beams.inv_dx, (inv(x0), inv(x1)));
+        store(beams.inv_dy, (inv(y0), inv(y1)));
+        let best = if beams.limit.is_null() {
+            let start = _mm256_set1_pd(beams.start);
+            (start, start)
+        } else {
+            let (l0, l1) = load(beams.limit);
+            let inv_res = _mm256_set1_pd(beams.inv_res);
+            let first = |l| _mm256_add_pd(_mm256_mul_pd(l, inv_res), one);
+            (first(l0), first(l1))
+        };
+        store(beams.best, best);
     }
 }
 

@@ -63,8 +63,8 @@ impl Beams<'_> {
         if let Some((rng, std, values)) = noise {
             // The draws wait on their generator's chain of integer operations, the set-up
             // on its two divisions a beam: taken together, each runs in the other's
-            // shadow. `ALONGSIDE` beams per batch of draws, four at a time by
-            // `avx::prepare4` (the same bits).
+            // shadow. `ALONGSIDE` beams per batch of draws, by `avx::prepare8`
+            // (the same bits).
             let blocks = n / ALONGSIDE;
             let beams = avx::BeamPtrs {
                 bc: self.beam_cos.as_ptr(),
@@ -93,8 +93,7 @@ impl Beams<'_> {
                         // SAFETY: only called with AVX (see `Sweep::prepare`'s callers); beams
                         // j..j + 8 lie within the n beams every array holds.
                         unsafe {
-                            avx::prepare4(gc, gs, &beams, j);
-                            avx::prepare4(gc, gs, &beams, j + 4);
+                            avx::prepare8(gc, gs, &beams, j);
                         }
                         *block += 1;
                     }
@@ -116,7 +115,7 @@ impl Beams<'_> {
     }
 }
 
-/// Beams set up per batch of the noise's draws (see [`Beams::fill`]).
+/// Beams set up per batch of the noise's draws (see [`Beams::fill`]): one `avx::prepare8`.
 const ALONGSIDE: usize = 8;
 
 /// The scan's noise as [`super::Sweep::prepare`] draws it: the generator, the standard deviation
