@@ -113,18 +113,6 @@ fn under_curve(z: &Ziggurat, i: usize, ax: f64, y: f64) -> bool {
     y < libm::exp(-0.5 * ax * ax)
 }
 
-/// Whether the CPU has what [`Rng::normals_avx2`] is compiled for: AVX2, and BMI1 and
-/// BMI2 (integer instructions only: the generator's shifts and rotations without copies of
-/// their operands). CPUs with AVX2 have them; where one does not report them (a virtual
-/// machine may not), the draws are the scalar ones, with the same bits.
-#[cfg(target_arch = "x86_64")]
-#[inline]
-fn has_avx2_bmi() -> bool {
-    std::arch::is_x86_feature_detected!("avx2")
-        && std::arch::is_x86_feature_detected!("bmi1")
-        && std::arch::is_x86_feature_detected!("bmi2")
-}
-
 /// Adds `v` to `r` (`ADD`), or sets it.
 #[inline(always)]
 fn put<const ADD: bool>(r: &mut f64, v: f64) {
@@ -241,12 +229,12 @@ impl Rng {
 
     /// Adds `mean + std * normal()` to every value of `out`, in order: the same draws and
     /// bits as calling [`Rng::normal_with`] per value, with the table lookup hoisted; with
-    /// AVX2 and BMI (where the CPU has them) the fast path four draws at a time
+    /// AVX2 (where the CPU has it) the fast path four draws at a time
     /// ([`Rng::normals_avx2`]), the same bits again.
     pub fn add_normal(&mut self, out: &mut [f64], mean: f64, std: f64) {
         #[cfg(target_arch = "x86_64")]
-        if has_avx2_bmi() {
-            // SAFETY: the CPU has AVX2, BMI1 and BMI2 (checked just above).
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
             unsafe { self.normals_avx2::<true>(out, mean, std, &mut || {}) };
             return;
         }
@@ -289,8 +277,8 @@ impl Rng {
         mut alongside: impl FnMut(),
     ) {
         #[cfg(target_arch = "x86_64")]
-        if has_avx2_bmi() {
-            // SAFETY: the CPU has AVX2, BMI1 and BMI2 (checked just above).
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
             unsafe { self.normals_avx2::<false>(out, mean, std, &mut alongside) };
             return;
         }
@@ -308,9 +296,9 @@ impl Rng {
     /// follows. So every value and the final state are those of the scalar loop.
     ///
     /// # Safety
-    /// The CPU must support AVX2, BMI1 and BMI2 ([`has_avx2_bmi`]).
+    /// The CPU must support AVX2.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,bmi1,bmi2")]
+    #[target_feature(enable = "avx2")]
     #[inline]
     unsafe fn normals_avx2<const ADD: bool>(
         &mut self,

@@ -28,7 +28,7 @@ pub enum ScanPath {
 #[error("scan path `{path}` needs CPU features this CPU lacks (it has: {features})")]
 pub struct ScanPathError {
     pub path: ScanPath,
-    /// The features this CPU has, as [`cpu_features`] lists them.
+    /// The SIMD features this CPU has, as [`cpu_features`] lists them.
     pub features: String,
 }
 
@@ -116,8 +116,8 @@ impl fmt::Display for ScanPath {
     }
 }
 
-/// The features of this CPU that matter to the scan and its noise, space-separated (for
-/// example `sse2 avx avx2 bmi2 fma avx512f`), or `none detected`.
+/// The SIMD features of this CPU that matter to the scan, space-separated (for example
+/// `sse2 avx avx2 fma avx512f`), or `none detected`.
 pub fn cpu_features() -> String {
     #[cfg(target_arch = "x86_64")]
     {
@@ -130,7 +130,7 @@ pub fn cpu_features() -> String {
             };
         }
         probe!(
-            "sse2", "sse4.1", "avx", "avx2", "bmi2", "fma", "avx512f", "avx512dq", "avx512vl"
+            "sse2", "sse4.1", "avx", "avx2", "fma", "avx512f", "avx512dq", "avx512vl"
         );
         if !have.is_empty() {
             return have.join(" ");
