@@ -91,7 +91,7 @@ impl Beams<'_> {
                     if *block < blocks {
                         let j = *block * ALONGSIDE;
                         // SAFETY: only called with AVX (see `Sweep::prepare`'s callers); beams
-                        // j..j + 8 lie within the n beams every array holds.
+                        // j..j + ALONGSIDE (eight) lie within the n beams every array holds.
                         unsafe {
                             avx::prepare8(gc, gs, &beams, j);
                         }
@@ -115,8 +115,10 @@ impl Beams<'_> {
     }
 }
 
-/// Beams set up per batch of the noise's draws (see [`Beams::fill`]): one `avx::prepare8`.
+/// Beams set up per batch of the noise's draws (see [`Beams::fill`]): one `avx::prepare8`,
+/// which sets up eight (checked here: its memory safety rests on it).
 const ALONGSIDE: usize = 8;
+const _: () = assert!(ALONGSIDE == 8, "one avx::prepare8 sets up eight beams");
 
 /// The scan's noise as [`super::Sweep::prepare`] draws it: the generator, the standard deviation
 /// and the values, one per beam.
