@@ -15,58 +15,11 @@
 //! times and of the ratios of each round's blocks are printed (blocks that short see the
 //! same host speed, so a ratio is told apart to about a per cent on a noisy host).
 
-use paddock_proto::{EnvOp, EnvOpen, EnvReset, Lidar};
-use paddock_sim::circuit::Circuits;
+mod common;
+
+use common::{BEAMS, ENVS, thread_cpu};
 use paddock_sim::world::{Action, PackedObservations, Worlds};
-use paddock_worker::sessions::Sessions;
-use prost::Message;
 use std::time::Duration;
-
-const ENVS: usize = 64;
-const BEAMS: usize = 1080;
-
-/// The 64 worlds of a session opened and reset as `env_session` does.
-fn session_worlds() -> Worlds {
-    let circuits = Circuits::new();
-    let mut sessions = Sessions::new();
-    sessions.set_circuits(circuits.clone());
-    let bundle = paddock_wire::local_map(&circuits, "lakeside").expect("a shipped map");
-    let open = EnvOpen {
-        map: Some(paddock_wire::map_ref(&bundle)),
-        num_envs: ENVS as u32,
-        seed: 0,
-        lidar: Some(Lidar {
-            num_beams: BEAMS as u32,
-            fov: 4.7,
-            max_range: 30.0,
-            noise_std: 0.01,
-            mount_offset: 0.0,
-        }),
-        laps: 100,
-        time_limit: 36_000.0,
-        frame_skip: 1,
-        ..Default::default()
-    };
-    let opened = sessions.handle(1, EnvOp::EnvOpen as i32, &open.encode_to_vec());
-    assert!(opened.header.error.is_none(), "{:?}", opened.header.error);
-    let reset = EnvReset {
-        seeds: (0..ENVS as u64).collect(),
-        ..Default::default()
-    };
-    let reply = sessions.handle(1, EnvOp::EnvReset as i32, &reset.encode_to_vec());
-    assert!(reply.header.error.is_none(), "{:?}", reply.header.error);
-    let env = sessions.env(1).expect("session 1 is open");
-    let first = env.world(0).expect("one env at least");
-    let mut worlds = Worlds::of(first, ENVS);
-    for i in 0..ENVS {
-        let snapshot = env.world(i).and_then(|w| w.snapshot().ok()).expect("reset");
-        worlds
-            .world_mut(i)
-            .restore(&snapshot)
-            .expect("a snapshot of the same config");
-    }
-    worlds
-}
 
 /// `n` copies of world `i` of `worlds`, each at its pose and state.
 fn copies(worlds: &Worlds, i: usize, n: usize) -> Worlds {
@@ -78,14 +31,6 @@ fn copies(worlds: &Worlds, i: usize, n: usize) -> Worlds {
             .expect("the same config");
     }
     out
-}
-
-/// This thread's CPU time so far.
-fn thread_cpu() -> Duration {
-    use nix::time::{ClockId, clock_gettime};
-    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-        .map(Duration::from)
-        .expect("this thread's CPU clock")
 }
 
 /// Seconds of CPU per call of `f`, over calls filling 20 ms of CPU time.
@@ -111,7 +56,7 @@ fn main() {
         .find_map(|a| a.parse::<usize>().ok())
         .unwrap_or(300)
         .max(1);
-    let mut poses = session_worlds();
+    let mut poses = common::session_worlds(&common::session());
     let mut same = copies(&poses, 0, ENVS);
     let mut one = copies(&poses, 0, 1);
     let actions = vec![Action::default(); ENVS];

@@ -1,0 +1,71 @@
+//! What the worker's benches share: the 64-env session of `client-py/benchmarks/env_steps.py`
+//! (lakeside, one car, 1080-beam scans, reset with seeds 0..64), its worlds, and the
+//! thread's CPU clock.
+
+use paddock_proto::{EnvOp, EnvOpen, EnvReset, Lidar};
+use paddock_sim::circuit::Circuits;
+use paddock_sim::world::Worlds;
+use paddock_worker::sessions::Sessions;
+use prost::Message;
+use std::time::Duration;
+
+pub const ENVS: usize = 64;
+pub const BEAMS: usize = 1080;
+
+/// Session 1 of a fresh `Sessions`: `ENVS` envs of one car with a `BEAMS`-beam scan on
+/// lakeside, reset with seeds 0..64 (as the Python bench's `reset(seed=0)`: the same start
+/// poses).
+pub fn session() -> Sessions {
+    let circuits = Circuits::new();
+    let mut sessions = Sessions::new();
+    sessions.set_circuits(circuits.clone());
+    let bundle = paddock_wire::local_map(&circuits, "lakeside").expect("a shipped map");
+    let open = EnvOpen {
+        map: Some(paddock_wire::map_ref(&bundle)),
+        num_envs: ENVS as u32,
+        seed: 0,
+        lidar: Some(Lidar {
+            num_beams: BEAMS as u32,
+            fov: 4.7,
+            max_range: 30.0,
+            noise_std: 0.01,
+            mount_offset: 0.0,
+        }),
+        laps: 100,
+        time_limit: 36_000.0,
+        frame_skip: 1,
+        ..Default::default()
+    };
+    let opened = sessions.handle(1, EnvOp::EnvOpen as i32, &open.encode_to_vec());
+    assert!(opened.header.error.is_none(), "{:?}", opened.header.error);
+    let reset = EnvReset {
+        seeds: (0..ENVS as u64).collect(),
+        ..Default::default()
+    };
+    let reply = sessions.handle(1, EnvOp::EnvReset as i32, &reset.encode_to_vec());
+    assert!(reply.header.error.is_none(), "{:?}", reply.header.error);
+    sessions
+}
+
+/// A copy of session 1's worlds (stepped without the session).
+pub fn session_worlds(sessions: &Sessions) -> Worlds {
+    let env = sessions.env(1).expect("session 1 is open");
+    let first = env.world(0).expect("one env at least");
+    let mut worlds = Worlds::of(first, env.num_envs());
+    for i in 0..env.num_envs() {
+        let snapshot = env.world(i).and_then(|w| w.snapshot().ok()).expect("reset");
+        worlds
+            .world_mut(i)
+            .restore(&snapshot)
+            .expect("a snapshot of the same config");
+    }
+    worlds
+}
+
+/// This thread's CPU time so far.
+pub fn thread_cpu() -> Duration {
+    use nix::time::{ClockId, clock_gettime};
+    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(Duration::from)
+        .expect("this thread's CPU clock")
+}
