@@ -21,18 +21,6 @@ use common::{BEAMS, ENVS, thread_cpu};
 use paddock_sim::world::{Action, PackedObservations, Worlds};
 use std::time::Duration;
 
-/// `n` copies of world `i` of `worlds`, each at its pose and state.
-fn copies(worlds: &Worlds, i: usize, n: usize) -> Worlds {
-    let snapshot = worlds.world(i).snapshot().expect("stepped");
-    let mut out = Worlds::of(worlds.world(i), n);
-    for k in 0..n {
-        out.world_mut(k)
-            .restore(&snapshot)
-            .expect("the same config");
-    }
-    out
-}
-
 /// Seconds of CPU per call of `f`, over calls filling 20 ms of CPU time.
 fn block(f: &mut dyn FnMut()) -> f64 {
     let t0 = thread_cpu();
@@ -57,8 +45,9 @@ fn main() {
         .unwrap_or(300)
         .max(1);
     let mut poses = common::session_worlds(&common::session());
-    let mut same = copies(&poses, 0, ENVS);
-    let mut one = copies(&poses, 0, 1);
+    // clones of world 0, each with its pose and state
+    let mut same = Worlds::of(poses.world(0), ENVS);
+    let mut one = Worlds::of(poses.world(0), 1);
     let actions = vec![Action::default(); ENVS];
     let mut scans = vec![0u8; ENVS * BEAMS * 4];
     let mut t: [Vec<f64>; 3] = Default::default();
