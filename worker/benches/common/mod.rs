@@ -2,8 +2,9 @@
 //! (lakeside, one car, 1080-beam scans, reset with seeds 0..64), its worlds, and the
 //! thread's CPU clock.
 
-use paddock_proto::{EnvOp, EnvOpen, EnvReset, Lidar};
+use paddock_proto::{EnvOp, EnvOpen, EnvReset};
 use paddock_sim::circuit::Circuits;
+use paddock_sim::lidar::LidarConfig;
 use paddock_sim::world::Worlds;
 use paddock_worker::sessions::Sessions;
 use prost::Message;
@@ -16,6 +17,11 @@ pub const BEAMS: usize = 1080;
 /// lakeside, reset with seeds 0..64 (as the Python bench's `reset(seed=0)`: the same start
 /// poses).
 pub fn session() -> Sessions {
+    assert_eq!(
+        LidarConfig::default().num_beams,
+        BEAMS,
+        "the default LIDAR's beams"
+    );
     let circuits = Circuits::new();
     let mut sessions = Sessions::new();
     sessions.set_circuits(circuits.clone());
@@ -24,13 +30,9 @@ pub fn session() -> Sessions {
         map: Some(paddock_wire::map_ref(&bundle)),
         num_envs: ENVS as u32,
         seed: 0,
-        lidar: Some(Lidar {
-            num_beams: BEAMS as u32,
-            fov: 4.7,
-            max_range: 30.0,
-            noise_std: 0.01,
-            mount_offset: 0.0,
-        }),
+        // the default LIDAR (`LidarConfig::default()`: 1080 beams over 4.7 rad to 30 m,
+        // noise 0.01), as the Python bench's envs have it
+        lidar: None,
         laps: 100,
         time_limit: 36_000.0,
         frame_skip: 1,
