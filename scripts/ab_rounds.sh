@@ -10,7 +10,8 @@
 #
 # Where each build's worlds land in memory moves one run's ratio by up to about 2 %, so
 # the script makes several runs, the two libraries loaded in either order in turn, and
-# reports each run and the median and range of the runs' ratios.
+# reports each run, the median and range of the runs' ratios, and the mean ratio of each
+# load order and of the two (the figure to take where the order biases the runs).
 #
 # Usage: scripts/ab_rounds.sh [BASE] [ROUNDS] [SECONDS]
 #   BASE     the build to compare with, any git revision (default HEAD)
@@ -72,4 +73,12 @@ speeds = [r["head_speed_over_base"] for r in runs]
 print()
 print(f"head / base over the runs: median {statistics.median(speeds):.4f}x, "
       f"range {min(speeds):.4f}-{max(speeds):.4f}x")
+# The library loaded first can read slower by itself (about 1 % on a Zen 3 guest, two
+# copies of one build): the mean over each load order, then of the two, cancels that.
+order = {f: [r["head_speed_over_base"] for r in runs if r["load_first"] == f]
+         for f in ("base", "head")}
+if order["base"] and order["head"]:
+    means = {f: statistics.fmean(v) for f, v in order.items()}
+    print(f"by load order: base first {means['base']:.4f}x, head first {means['head']:.4f}x, "
+          f"their mean {(means['base'] + means['head']) / 2:.4f}x")
 PY
