@@ -15,7 +15,9 @@ export CARGO_TERM_COLOR="${CARGO_TERM_COLOR:-never}"
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"
-cargo clippy --workspace --all-targets --locked -- -D warnings
+# In the release profile, as the tests below: the C libraries' builds (SQLite, zstd) and
+# the proc macros are then built once for both (the lints are the same).
+cargo clippy --workspace --all-targets --release --locked -- -D warnings
 echo "== cargo test (release: the conformance and simulator tests step millions of times)"
 cargo test --workspace --release --locked
 echo "== benchmarks compile"
