@@ -21,7 +21,9 @@ seconds="${2:-3}"
 source scripts/rounds.sh
 
 cargo build --release --locked -q -p paddock -p paddock-embed
-bench="$(cargo bench --locked -p paddock-worker --bench env_session --no-run 2>&1 |
+# --workspace, not -p paddock-worker: the workspace's features, so the third-party crates
+# that scripts/test.sh built are reused instead of built again for one package's features
+bench="$(cargo bench --workspace --locked --bench env_session --no-run 2>&1 |
     sed -n 's/.*(\(.*env_session-[0-9a-f]*\)).*/\1/p' | tail -n 1)"
 if [ ! -x "$bench" ]; then
     echo "error: the env_session bench was not built" >&2
