@@ -1,5 +1,5 @@
-//! What stepping many worlds in turn costs over stepping one (`cargo bench -p
-//! paddock-worker --bench worlds_cycle -- [ROUNDS]`): the bound on what scanning all of a
+//! What stepping many worlds in turn costs over stepping one (`cargo bench --workspace
+//! --bench worlds_cycle -- [ROUNDS]`): the bound on what scanning all of a
 //! vector env's cars in one pass could save by keeping the worlds' state and the scan's
 //! working set in the cache. Three ways to take 64 one-car steps with 1080-beam scans,
 //! the worlds of `env_session`'s 64-env session (lakeside, standing cars, seeds 0..64):
