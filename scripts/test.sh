@@ -24,13 +24,17 @@ source scripts/setup.sh
 export CARGO_TERM_COLOR="${CARGO_TERM_COLOR:-never}"
 
 logs="$(mktemp -d)"
-trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$logs"' EXIT
+# Background jobs run in process groups of their own (set -m while starting them), so
+# that an interrupted or failed run stops them with everything they started.
+trap 'for p in $(jobs -p); do kill -- -"$p" 2>/dev/null || true; done; rm -rf "$logs"' EXIT
 since() { echo "$(($(date +%s) - $1)) s"; }
 start=$(date +%s)
 
 # The Python venv (pip downloads, mostly) is set up while cargo builds.
+set -m
 (nice -n 10 bash -c 'source scripts/venv.sh' >"$logs/venv" 2>&1) &
 venv_pid=$!
+set +m
 
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
@@ -86,9 +90,11 @@ track() { # name, command...
     ) &
     pid[$name]=$!
 }
+set -m
 track timed run_timed
 track python env PADDOCK_BIN="$CARGO_TARGET_DIR/release/paddock" nice -n 10 bash scripts/python.sh
 track rest nice -n 19 cargo test --workspace --release --locked "${not_timed[@]}"
+set +m
 
 failed=()
 for name in timed python rest; do
