@@ -8,7 +8,7 @@
 # them wait (on processes, sockets, real-time loops) rather than compute:
 #   timed   the end-to-end and ROS 2 bridge suites (paddock-e2e, paddock-bridge), which
 #           time failure detection and real-time loops: normal priority, one binary at
-#           a time as before;
+#           a time as before (a test that times a real-time loop belongs there);
 #   python  the Python client's and the ROS 2 interop tests (scripts/python.sh): nice 10;
 #   rest    every other crate's tests, mostly computation: nice 19, so they take only the
 #           cycles the other two leave.
