@@ -43,7 +43,12 @@ echo "== cargo clippy"
 # and the proc macros are then built once for both (the lints are the same).
 cargo clippy --workspace --all-targets --release --locked -- -D warnings
 echo "== build (release: the conformance and simulator tests step millions of times)"
-cargo test --workspace --release --locked --no-run
+# The timed track (below) runs its test executables itself: the build lists them (cargo's
+# JSON messages on stdout, its progress and diagnostics on stderr as usual).
+timed=(paddock-e2e paddock-bridge)
+listed="$(cargo test --workspace --release --locked --no-run --message-format=json-render-diagnostics |
+    python3 scripts/test_executables.py "${timed[@]}")"
+mapfile -t timed_tests <<<"$listed"
 echo "== benchmarks compile"
 cargo bench --workspace --locked --no-run
 # the binary and the in-process simulator's library that the Python tests load
@@ -59,12 +64,8 @@ echo "== built in $(since "$start")"
 # as it is; the timed track runs its test executables itself (in their package's folder,
 # as cargo does): a cargo test of only those packages would unify features differently
 # and build 25 crates again.
-timed=(paddock-e2e paddock-bridge)
 not_timed=()
 for m in "${timed[@]}"; do not_timed+=(--exclude "$m"); done
-listed="$(cargo test --workspace --release --locked --no-run --message-format=json |
-    python3 scripts/test_executables.py "${timed[@]}")"
-mapfile -t timed_tests <<<"$listed"
 run_timed() {
     local rc=0 line dir exe
     for line in "${timed_tests[@]}"; do

@@ -1,5 +1,5 @@
 """The test executables of some workspace packages, from `cargo test --no-run
---message-format=json` on stdin: one line per executable, its package's folder and its
+--message-format=json` (or `json-render-diagnostics`) on stdin: one line per executable, its package's folder and its
 path separated by a tab, in cargo's build order. Used by scripts/test.sh.
 
     cargo test --workspace --release --no-run --message-format=json |
