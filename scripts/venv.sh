@@ -11,17 +11,29 @@ _pins=(pyzmq==27.3.0 protobuf==7.36.2 gymnasium==1.4.0 numpy==2.4.6 cma==4.5.0 p
        cyclonedds==11.0.1 rosbags==0.11.9 mcap==1.6.0
        pygame==2.6.1 moviepy==2.2.1 onnx==1.23.2 onnxruntime==1.32.0 pettingzoo==1.27.0)
 
-if [ ! -x "$VENV/bin/python" ]; then
+_stamp="$VENV/.paddock-stamp"
+# A venv whose creation was interrupted (Ctrl-C, a stopped run) can have its python but
+# no pip: made again from scratch, with its stamp gone.
+if ! "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
     echo "venv.sh: creating the venv $VENV" >&2
-    "$_py" -m venv "$VENV"
+    rm -f "$_stamp"
+    "$_py" -m venv --clear "$VENV" || {
+        echo "venv.sh: error: could not create the venv $VENV" >&2
+        return 1
+    }
 fi
 # install only when the pins, the package metadata or the checkout (the editable
-# install points into it) changed
-_stamp="$VENV/.paddock-stamp"
+# install points into it) changed; the stamp is written only after both installs
+# succeeded, whether or not the caller stops on errors
 _want="$( { printf '%s\n' "${_pins[@]}" "$(pwd -P)"; cat client-py/pyproject.toml; } | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$_stamp" ] || [ "$(cat "$_stamp")" != "$_want" ]; then
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "${_pins[@]}"
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e client-py
+    rm -f "$_stamp"
+    if ! "$VENV/bin/python" -m pip install -q --disable-pip-version-check "${_pins[@]}" ||
+        ! "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e client-py; then
+        echo "venv.sh: error: installing the Python packages into $VENV failed (above)" >&2
+        unset _py _pins _stamp _want
+        return 1
+    fi
     echo "$_want" > "$_stamp"
 fi
 unset _py _pins _stamp _want
