@@ -77,22 +77,7 @@ impl DriveCore {
         }
         driver.reset();
         let lidar_driver = driver.sensors().lidar;
-        let obs = Observation {
-            num_beams: lidar.num_beams,
-            scans: vec![lidar.max_range; lidar.num_beams],
-            poses_x: vec![0.0],
-            poses_y: vec![0.0],
-            poses_theta: vec![0.0],
-            linear_vels_x: vec![0.0],
-            linear_vels_y: vec![0.0],
-            ang_vels_z: vec![0.0],
-            collisions: vec![false],
-            lap_times: vec![0.0],
-            lap_counts: vec![0],
-            steering_angles: vec![0.0],
-            progress: vec![0.0],
-            slip_angles: vec![0.0],
-        };
+        let obs = Observation::one_car(vec![lidar.max_range; lidar.num_beams]);
         let drift = safety.max_clock_drift;
         let mount = LaserMount::ahead(lidar.mount_offset);
         let mut safety = Safety::new(safety)?;

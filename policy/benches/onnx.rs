@@ -69,24 +69,13 @@ fn mlp(hidden: usize, act: &str) -> Model {
 
 /// One car's observation with a scan of plausible ranges.
 fn observation() -> Observation {
-    let scans = (0..BEAMS)
-        .map(|i| 1.0 + 4.0 * (i as f64 * 0.01).sin().abs())
-        .collect();
     Observation {
-        num_beams: BEAMS,
-        scans,
-        poses_x: vec![0.0],
-        poses_y: vec![0.0],
-        poses_theta: vec![0.0],
         linear_vels_x: vec![3.0],
-        linear_vels_y: vec![0.0],
-        ang_vels_z: vec![0.0],
-        collisions: vec![false],
-        lap_times: vec![0.0],
-        lap_counts: vec![0],
-        steering_angles: vec![0.0],
-        progress: vec![0.0],
-        slip_angles: vec![0.0],
+        ..Observation::one_car(
+            (0..BEAMS)
+                .map(|i| 1.0 + 4.0 * (i as f64 * 0.01).sin().abs())
+                .collect(),
+        )
     }
 }
 

@@ -16,20 +16,10 @@ use tract_onnx::pb::tensor_proto::DataType;
 
 fn obs_with_scan(scan: &[f64]) -> Observation {
     Observation {
-        num_beams: scan.len(),
-        scans: scan.to_vec(),
         poses_x: vec![2.0],
-        poses_y: vec![0.0],
         poses_theta: vec![0.25],
         linear_vels_x: vec![3.0],
-        linear_vels_y: vec![0.0],
-        ang_vels_z: vec![0.0],
-        collisions: vec![false],
-        lap_times: vec![0.0],
-        lap_counts: vec![0],
-        steering_angles: vec![0.0],
-        progress: vec![0.0],
-        slip_angles: vec![0.0],
+        ..Observation::one_car(scan.to_vec())
     }
 }
 

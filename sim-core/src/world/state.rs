@@ -73,6 +73,28 @@ pub struct Observation {
 }
 
 impl Observation {
+    /// One car at rest at the origin, on the grid, with no collision, lap or progress,
+    /// whose scan is `scan`: the observation a driver is given where there is no world
+    /// (a bridge's first action, a benchmark or test of a driver on its own).
+    pub fn one_car(scan: Vec<f64>) -> Self {
+        Observation {
+            num_beams: scan.len(),
+            scans: scan,
+            poses_x: vec![0.0],
+            poses_y: vec![0.0],
+            poses_theta: vec![0.0],
+            linear_vels_x: vec![0.0],
+            linear_vels_y: vec![0.0],
+            ang_vels_z: vec![0.0],
+            collisions: vec![false],
+            lap_times: vec![0.0],
+            lap_counts: vec![0],
+            steering_angles: vec![0.0],
+            progress: vec![0.0],
+            slip_angles: vec![0.0],
+        }
+    }
+
     /// The scan of agent `i`.
     pub fn scan(&self, i: usize) -> &[f64] {
         &self.scans[i * self.num_beams..(i + 1) * self.num_beams]
