@@ -25,7 +25,9 @@ use paddock_sim::geometry::Pose;
 use paddock_sim::lidar::{
     Lidar, LidarConfig, ScanAlgorithm, ScanPath, cpu_features, cpu_model, thread_scans_by_algorithm,
 };
-use paddock_sim::world::{Action, PackedObservations, Starts, World, WorldConfig, Worlds};
+use paddock_sim::world::{
+    Action, PackedObservations, Starts, StepEvents, World, WorldConfig, Worlds,
+};
 use serde::Serialize;
 
 #[derive(Args)]
@@ -187,6 +189,9 @@ fn drive(
         .map(|_| PurePursuit::on_circuit(circuit, PurePursuitParams::default()))
         .collect();
     let mut actions = vec![Action::default(); agents];
+    // Stepped as rollouts and vector envs step a world: into events kept from one step
+    // to the next (`World::step` allocates them afresh, three small vectors a step).
+    let mut events = StepEvents::default();
     let budget = Duration::from_secs_f64(seconds.max(0.1));
     let mut clock = StepClock::start();
     let mut agent_steps = 0u64;
@@ -208,7 +213,7 @@ fn drive(
                 }
                 actions[i] = d.act(obs, i);
             }
-            clock.time(|| world.step(&actions))?;
+            clock.time(|| world.step_into(&actions, &mut events))?;
             agent_steps += agents as u64;
         }
     }
