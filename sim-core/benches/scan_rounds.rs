@@ -24,7 +24,7 @@ use paddock_sim::lidar::{Lidar, LidarConfig, ScanPath, cpu_features, cpu_model};
 use paddock_sim::map::Map;
 use paddock_sim::rng::Rng;
 use paddock_sim::track::Track;
-use paddock_sim::world::{Action, Starts, World, WorldConfig};
+use paddock_sim::world::{Action, Starts, StepEvents, World, WorldConfig};
 
 /// Nanoseconds of CPU time this thread has run, if the OS says.
 fn cpu_ns() -> Option<u64> {
@@ -96,6 +96,8 @@ fn world_case<'a>(
     w.reset(0, &Starts::Random).expect("reset");
     let start = w.snapshot().expect("snapshot");
     let actions = vec![Action::new(0.05, 4.0); agents];
+    // Stepped as rollouts and vector envs step a world: into events kept between steps.
+    let mut events = StepEvents::default();
     let mut k = 0u32;
     let name = match path {
         Some(p) if sweep => format!("world {agents} car(s), scan {p} sweep"),
@@ -112,7 +114,8 @@ fn world_case<'a>(
                 if k.is_multiple_of(200) {
                     w.restore(&start).expect("restore");
                 }
-                black_box(w.step(black_box(&actions)).expect("step"));
+                w.step_into(black_box(&actions), &mut events).expect("step");
+                black_box(&events);
             }
         }),
         per_round: 0,

@@ -8,7 +8,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use paddock_sim::circuit::Circuits;
 use paddock_sim::collision::CollisionMode;
 use paddock_sim::lidar::ScanPath;
-use paddock_sim::world::{Action, Starts, World, WorldConfig};
+use paddock_sim::world::{Action, Starts, StepEvents, World, WorldConfig};
 use std::hint::black_box;
 
 fn world(agents: usize, scan: bool) -> World {
@@ -42,6 +42,8 @@ fn bench_world(c: &mut Criterion) {
         }
         let start = w.snapshot().unwrap();
         let actions = vec![Action::new(0.05, 4.0); agents];
+        // Stepped as rollouts and vector envs step a world: into events kept between steps.
+        let mut events = StepEvents::default();
         let name = match path {
             Some(p) => format!("world_step/{agents}car_scan/{p}"),
             None => format!("world_step/{agents}car_noscan"),
@@ -53,7 +55,8 @@ fn bench_world(c: &mut Criterion) {
                 if k.is_multiple_of(200) {
                     w.restore(&start).unwrap();
                 }
-                black_box(w.step(black_box(&actions)).unwrap());
+                w.step_into(black_box(&actions), &mut events).unwrap();
+                black_box(&events);
             })
         });
     }
