@@ -19,6 +19,8 @@
 #   SECONDS  CPU seconds of each run (default 20)
 # Extra ab_steps.py flags: $AB_ARGS (for example AB_ARGS="--map Spa --envs 8"). The base
 # must speak the same embedding ABI as this checkout's client (ab_steps.py says if not).
+# PADDOCK_SCAN_PATH=avx times both builds on the AVX2 code path on a CPU that also has
+# AVX-512 (a base from before that variable is refused while it is set).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh

@@ -49,10 +49,19 @@ base_build() {
 }
 
 # base_rev BASE: the full hash of the commit BASE names (any git revision); exits 2
-# naming BASE if it names none.
+# naming BASE if it names none, or if PADDOCK_SCAN_PATH is set and the base's build would
+# not read it (it predates the variable: its scans would take the widest path, the head's
+# the one named, and the two would not be comparable).
 base_rev() {
-    git rev-parse --verify --quiet "$1^{commit}" || {
+    local rev
+    rev="$(git rev-parse --verify --quiet "$1^{commit}")" || {
         echo "error: BASE = '$1' is not a commit of this repository (a shallow clone may lack it: git fetch --unshallow)" >&2
         exit 2
     }
+    if [ -n "${PADDOCK_SCAN_PATH:-}" ] &&
+        ! git cat-file -e "$rev:worker/src/scan_path.rs" 2>/dev/null; then
+        echo "error: PADDOCK_SCAN_PATH = '$PADDOCK_SCAN_PATH' is set, but BASE = '$1' predates the variable (its build would scan on its widest path); give a later base, or with scripts/perf_rounds.sh HEAD_ARGS=\"--scan-path ...\" instead" >&2
+        exit 2
+    fi
+    printf '%s\n' "$rev"
 }

@@ -8,6 +8,9 @@
 # share of the simulator's rate in the same round (docs/performance-vecenv.md records such
 # tables).
 #
+# PADDOCK_SCAN_PATH=avx measures all three on the AVX2 code path on a CPU that also has
+# AVX-512 (the bench, the in-process library and the server's worker read it).
+#
 # Usage: scripts/vecenv_rounds.sh [ROUNDS] [SECONDS]
 #   ROUNDS   rounds of the three measurements (default 3)
 #   SECONDS  env_steps.py --seconds per phase (default 3)

@@ -148,6 +148,13 @@ fn main() {
             .unwrap_or_default(),
     );
     let circuits = &circuits;
+    // The scan path of env sessions' and `paddock perf`'s worlds (`PADDOCK_SCAN_PATH`):
+    // one this CPU cannot run, or no path at all, is refused here, naming the variable
+    // and the value, whatever the command.
+    if let Err(e) = paddock_worker::scan_path::scan_path_from_env() {
+        eprintln!("error: {e}");
+        std::process::exit(2);
+    }
     let result = client_security(&cli).and_then(|()| match cli.command {
         Command::Tune(args) => match &args.endpoint {
             Some(endpoint) => jobs_cmd::tune_remote(&args, endpoint, args.detach, circuits),

@@ -320,7 +320,8 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         args.agents
     );
     let path = match args.scan_path.as_deref() {
-        None => ScanPath::best(),
+        // else `PADDOCK_SCAN_PATH`'s (checked at start), else the widest
+        None => paddock_worker::scan_path::scan_path_from_env()?.unwrap_or_else(ScanPath::best),
         Some(name) => ScanPath::from_name(name)
             .with_context(|| format!("--scan-path {name:?} is not one of portable, avx, avx512"))?,
     };

@@ -220,6 +220,7 @@ pub fn worker(args: &WorkerArgs, circuits: &Circuits) -> Result<()> {
     cfg.threads = args.threads;
     cfg.curve = crate::remote::security();
     cfg.health_file = args.health_file.clone();
+    cfg.scan_path = paddock_worker::scan_path::scan_path_from_env()?;
     if let Some(m) = &args.maps {
         cfg.maps_dir = m.clone();
     }
@@ -285,12 +286,14 @@ pub fn serve(args: &ServeArgs, circuits: &Circuits) -> Result<()> {
         .maps
         .clone()
         .unwrap_or_else(|| state.join("worker-maps"));
+    let scan_path = paddock_worker::scan_path::scan_path_from_env()?;
     let mut workers = Vec::with_capacity(args.workers);
     for _ in 0..args.workers {
         let mut cfg = WorkerConfig::new(&local);
         cfg.threads = threads;
         cfg.maps_dir = maps.clone();
         cfg.vehicle = vehicle.clone();
+        cfg.scan_path = scan_path;
         // one registry for the process: the workers load each map once between them
         cfg.circuits = circuits.clone();
         workers.push(WorkerThread::spawn_in(cfg, ctx.clone()).context("starting a worker")?);

@@ -80,6 +80,53 @@ fn perf_json_has_the_documented_keys() {
     );
 }
 
+/// `paddock ARGS` with `PADDOCK_SCAN_PATH` set to `value`: its exit status, stdout, stderr.
+fn paddock_with_scan_path(value: &str, args: &[&str]) -> (Option<i32>, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_paddock"))
+        .args(args)
+        .env("PADDOCK_SCAN_PATH", value)
+        .output()
+        .expect("run paddock");
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn the_scan_path_variable_sets_the_default_path_and_bad_values_are_refused() {
+    let perf = ["perf", "--json", "--seconds", "0.1", "--agents", "1"];
+    // the narrowest path, which every CPU runs, taken by default and named in the report
+    let (code, out, err) = paddock_with_scan_path("portable", &perf);
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["scan_path"], "portable", "{out}");
+    assert_eq!(v["scan_sweep_vectors"], "none", "{out}");
+    // empty: as if unset (the widest path)
+    let (code, out, err) = paddock_with_scan_path("", &perf);
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let widest = v["scan_path"].as_str().expect("scan_path").to_string();
+    // a flag wins over the variable
+    let mut forced = perf.to_vec();
+    forced.extend(["--scan-path", &widest]);
+    let (code, out, err) = paddock_with_scan_path("portable", &forced);
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["scan_path"], widest.as_str(), "{out}");
+    // no such path: refused at start, naming the variable and its value, on any command
+    for args in [&perf[..], &["maps", "list", "--json"]] {
+        let (code, out, err) = paddock_with_scan_path("avx-512", args);
+        assert_eq!(code, Some(2), "{out}{err}");
+        assert!(out.is_empty(), "{out}");
+        assert_eq!(
+            err.trim(),
+            "error: PADDOCK_SCAN_PATH=\"avx-512\" is not one of portable, avx, avx512"
+        );
+    }
+}
+
 #[test]
 fn demo_laps_the_default_map_deterministically() {
     let (ok, a, err) = paddock(&["demo", "--json", "--seed", "4"]);

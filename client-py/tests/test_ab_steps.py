@@ -78,3 +78,40 @@ def test_a_missing_library_is_named(two_copies, tmp_path: Path) -> None:
     r = run("--base", a, "--head", missing, "--seconds", 1)
     assert r.returncode != 0
     assert str(missing) in r.stderr
+
+
+def base_rev(base: str, scan_path: str | None) -> subprocess.CompletedProcess:
+    """``base_rev BASE`` of scripts/rounds.sh (what scripts/ab_rounds.sh and
+    scripts/perf_rounds.sh check their base with), ``PADDOCK_SCAN_PATH`` set to
+    ``scan_path`` (unset for None)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "PADDOCK_SCAN_PATH"}
+    if scan_path is not None:
+        env["PADDOCK_SCAN_PATH"] = scan_path
+    script = 'rounds=1 seconds=1; source scripts/rounds.sh; base_rev "$1"'
+    return subprocess.run(["bash", "-c", script, "base_rev", base], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_a_base_that_predates_the_scan_path_variable_is_refused_while_it_is_set() -> None:
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    head = base_rev("HEAD", "avx")
+    assert head.returncode == 0, head.stderr
+    assert len(head.stdout.strip()) == 40
+    # the last commit before the variable (as the issue's build 4acddcb is) is refused
+    # while it is set, and taken while it is not
+    added = subprocess.run(["git", "log", "--reverse", "--format=%H", "--diff-filter=A",
+                            "--", "worker/src/scan_path.rs"],
+                           cwd=ROOT, capture_output=True, text=True).stdout.split()
+    assert added, "no commit adds worker/src/scan_path.rs"
+    parent = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{added[0]}^"],
+                            cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    if not parent:
+        pytest.skip("a shallow clone without the commits before the variable")
+    refused = base_rev(parent, "avx")
+    assert refused.returncode == 2
+    assert f"PADDOCK_SCAN_PATH = 'avx' is set, but BASE = '{parent}' predates" in refused.stderr
+    assert base_rev(parent, None).returncode == 0
+    assert base_rev(parent, "").returncode == 0

@@ -202,3 +202,54 @@ def test_each_library_file_is_its_own_simulator(tmp_path: Path, monkeypatch) -> 
                     np.testing.assert_array_equal(u[k], v[k], err_msg=k)
             else:
                 np.testing.assert_array_equal(u, v)
+
+
+SCAN_PATH_SCRIPT = """
+import hashlib, sys
+import numpy as np
+import paddock
+from paddock import errors
+try:
+    env = paddock.make_vec(3, paddock.IN_PROCESS, num_beams=1080, num_agents=2, frame_skip=2)
+except errors.InvalidArgument as e:
+    print("refused", e.field, e)
+    sys.exit(0)
+rng = np.random.default_rng(2)
+h = hashlib.sha256()
+obs, _ = env.reset(seed=4)
+h.update(obs["scans"].tobytes())
+for _ in range(40):
+    a = np.column_stack([rng.uniform(-0.4, 0.4, 3), rng.uniform(0.5, 6.0, 3)])
+    obs, r, term, trunc, _ = env.step(a.astype(np.float32))
+    h.update(obs["scans"].tobytes())
+    h.update(r.tobytes())
+env.close()
+print("scans", h.hexdigest())
+"""
+
+
+def in_process_with_scan_path(value: str | None) -> str:
+    """The last line a learner's process prints that steps an in-process vector env with
+    ``PADDOCK_SCAN_PATH`` set to ``value`` (unset for None)."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PADDOCK_SCAN_PATH"}
+    if value is not None:
+        env["PADDOCK_SCAN_PATH"] = value
+    done = subprocess.run([sys.executable, "-c", SCAN_PATH_SCRIPT], env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip().splitlines()[-1]
+
+
+def test_the_scan_path_variable_keeps_the_bits_and_a_bad_value_is_refused() -> None:
+    # every path gives the same bits: the portable one, chosen by the variable, against the
+    # widest this CPU has
+    widest = in_process_with_scan_path(None)
+    assert widest.startswith("scans ")
+    assert in_process_with_scan_path("portable") == widest
+    # a value that names no path: the env's opening is refused, naming the variable
+    refused = in_process_with_scan_path("sse9")
+    assert refused.startswith("refused PADDOCK_SCAN_PATH "), refused
+    assert "PADDOCK_SCAN_PATH=\"sse9\" is not one of portable, avx, avx512" in refused

@@ -79,6 +79,9 @@ impl Embedded {
         let mut sessions = Sessions::new();
         sessions.set_circuits(Circuits::new());
         sessions.set_fingerprints(false);
+        // the learner's process's `PADDOCK_SCAN_PATH`: a bad value refuses every env open,
+        // naming it
+        sessions.set_scan_path(paddock_worker::scan_path::scan_path_from_env());
         Self {
             sessions,
             cache: None,

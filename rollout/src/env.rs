@@ -36,6 +36,7 @@ use std::sync::Arc;
 use paddock_policy::{build_driver, check_lidar, driver_info};
 use paddock_sim::circuit::{Circuit, Circuits};
 use paddock_sim::geometry::Pose;
+use paddock_sim::lidar::{ScanPath, ScanPathError};
 use paddock_sim::world::{Action, World, Worlds};
 
 use crate::{RolloutError, task_seed};
@@ -233,6 +234,26 @@ impl VecEnv {
     /// Cars per copy: the learners' and the opponents'.
     pub fn num_agents(&self) -> usize {
         self.config.learners + self.config.opponents.len()
+    }
+
+    /// Takes every world's LIDAR scans on `path` (see `World::set_scan_path`): the same
+    /// bits, another speed; an error, changing nothing, if this CPU cannot run it.
+    pub fn set_scan_path(&mut self, path: ScanPath) -> Result<(), ScanPathError> {
+        if !path.supported() {
+            return Err(ScanPathError {
+                path,
+                features: paddock_sim::lidar::cpu_features(),
+            });
+        }
+        for i in 0..self.worlds.len() {
+            self.worlds.world_mut(i).set_scan_path(path)?;
+        }
+        Ok(())
+    }
+
+    /// The code path of the worlds' LIDAR scans.
+    pub fn scan_path(&self) -> ScanPath {
+        self.worlds.world(0).scan_path()
     }
 
     /// Learner cars per copy (cars `0..num_learners`).

@@ -38,6 +38,7 @@ mod fetch;
 pub mod liveness;
 pub mod maps;
 pub mod render;
+pub mod scan_path;
 mod serve;
 pub mod sessions;
 pub mod tasks;
@@ -49,6 +50,7 @@ use std::time::Duration;
 
 use paddock_libzmq::Curve;
 use paddock_sim::circuit::Circuits;
+use paddock_sim::lidar::ScanPath;
 use paddock_sim::params::VehicleParams;
 
 pub use serve::Worker;
@@ -117,6 +119,9 @@ pub struct WorkerConfig {
     /// cached maps by folder, and local maps by name for sessions (`paddock serve` with
     /// `PADDOCK_MAPS`).
     pub circuits: Circuits,
+    /// The LIDAR code path of the env sessions' worlds (`PADDOCK_SCAN_PATH`, read by the
+    /// `paddock` command, see [`scan_path`]); `None`: the widest this CPU supports.
+    pub scan_path: Option<ScanPath>,
 }
 
 /// The default [`WorkerConfig::spin`].
@@ -137,6 +142,7 @@ impl WorkerConfig {
             spin: DEFAULT_SPIN,
             vehicle: VehicleParams::default(),
             circuits: Circuits::new(),
+            scan_path: None,
         }
     }
 }

@@ -95,6 +95,7 @@ impl Worker {
         sessions.set_map_cache(cache.clone());
         sessions.set_circuits(cfg.circuits.clone());
         sessions.set_default_vehicle(cfg.vehicle.clone());
+        sessions.set_scan_path(Ok(cfg.scan_path));
         let endpoint = format!(
             "inproc://paddock-worker-results-{}-{seq}",
             std::process::id()
@@ -156,6 +157,13 @@ impl Worker {
         self.stats.clone()
     }
 
+    /// The LIDAR code path of its env sessions' worlds.
+    fn scan_path(&self) -> paddock_sim::lidar::ScanPath {
+        self.cfg
+            .scan_path
+            .unwrap_or_else(paddock_sim::lidar::ScanPath::best)
+    }
+
     fn connect(&mut self) -> Result<zmq::Socket, WorkerError> {
         let sock = self
             .ctx
@@ -206,8 +214,8 @@ impl Worker {
                 capacity = self.capacity,
                 broker = %self.cfg.connect,
                 cpu = %paddock_sim::lidar::cpu_model(),
-                scan_path = %paddock_sim::lidar::ScanPath::best(),
-                sweep_vectors = paddock_sim::lidar::ScanPath::best().sweep_vectors(),
+                scan_path = %self.scan_path(),
+                sweep_vectors = self.scan_path().sweep_vectors(),
                 "connected"
             );
             let mut live = Liveness::new(self.cfg.heartbeat, self.cfg.liveness, Instant::now());

@@ -38,12 +38,14 @@ use paddock_proto::{
 use paddock_rollout::RolloutError;
 use paddock_rollout::env::VecEnv;
 use paddock_sim::circuit::{Circuit, Circuits};
+use paddock_sim::lidar::ScanPath;
 use paddock_sim::params::VehicleParams;
 use paddock_wire::with_prefix;
 use prost::Message;
 
 use crate::maps::{MapCache, is_hash};
 use crate::render::Renderers;
+use crate::scan_path::{SCAN_PATH_VAR, ScanPathVarError};
 
 /// Most sessions one worker hosts at once; more are answered `BUSY`.
 pub const MAX_SESSIONS: usize = 256;
@@ -62,6 +64,9 @@ pub struct Sessions {
     vehicle: Option<VehicleParams>,
     /// Replies carry no fingerprint (0): nobody rebuilds these sessions elsewhere.
     unfingerprinted: bool,
+    /// The scan path of the sessions' worlds (`None`: the widest), or why the setting
+    /// was refused (every open is then refused, naming it).
+    scan_path: Option<Result<ScanPath, ScanPathVarError>>,
 }
 
 /// Where the map of an open request is: a folder of the map cache, or a local map
@@ -119,6 +124,14 @@ impl Sessions {
     /// replies' `fingerprint` is then 0.
     pub fn set_fingerprints(&mut self, on: bool) {
         self.unfingerprinted = !on;
+    }
+
+    /// The LIDAR code path of the worlds of sessions opened from now on (see
+    /// [`crate::scan_path`]): a path, `None` for the widest this CPU supports, or a
+    /// refused setting, which every open then answers with an `INVALID_ARGUMENT` error
+    /// naming `PADDOCK_SCAN_PATH` (where no program checked the setting before).
+    pub fn set_scan_path(&mut self, setting: Result<Option<ScanPath>, ScanPathVarError>) {
+        self.scan_path = setting.transpose();
     }
 
     /// The env of session `id`, when it is open here.
@@ -214,6 +227,11 @@ impl Sessions {
                 "the broker opens a session this worker hosts again (a rebuild): replacing it"
             );
         }
+        let path = match &self.scan_path {
+            None => None,
+            Some(Ok(path)) => Some(*path),
+            Some(Err(e)) => return Err(invalid(SCAN_PATH_VAR, e.to_string())),
+        };
         if self.open.len() >= MAX_SESSIONS {
             return Err(error(
                 ErrorCode::Busy,
@@ -234,7 +252,7 @@ impl Sessions {
             .map_err(|e| with_prefix(e, "env_open"))?;
         let learners = config.learners;
         let circuits = &self.circuits;
-        let env = guarded(|| {
+        let mut env = guarded(|| {
             let circuit = match at {
                 MapAt::Cached(dir) => circuits.load(&dir)?,
                 MapAt::Local(c) => c,
@@ -243,6 +261,10 @@ impl Sessions {
         })
         .and_then(|r| r.map_err(|e| paddock_wire::env::env_error(&e, learners)))
         .map_err(|e| with_prefix(e, "env_open"))?;
+        if let Some(path) = path {
+            env.set_scan_path(path)
+                .map_err(|e| invalid(SCAN_PATH_VAR, format!("{SCAN_PATH_VAR}={path}: {e}")))?;
+        }
         let opened = paddock_wire::env::opened_to_proto(&env);
         self.open.insert(id, env);
         Ok(opened)

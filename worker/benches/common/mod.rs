@@ -25,6 +25,10 @@ pub fn session() -> Sessions {
     let circuits = Circuits::new();
     let mut sessions = Sessions::new();
     sessions.set_circuits(circuits.clone());
+    // on the path `PADDOCK_SCAN_PATH` names, as the learner's process and the server
+    // would take (scripts/vecenv_rounds.sh compares them)
+    sessions.set_scan_path(Ok(paddock_worker::scan_path::scan_path_from_env()
+        .expect("PADDOCK_SCAN_PATH names a path this CPU runs")));
     let bundle = paddock_wire::local_map(&circuits, "lakeside").expect("a shipped map");
     let open = EnvOpen {
         map: Some(paddock_wire::map_ref(&bundle)),

@@ -345,3 +345,42 @@ fn scans_go_into_the_callers_buffer_and_fingerprints_can_be_left_out() {
     let got = local.handle_into(3, STEP, &step(actions(1)), Some(&mut buf));
     assert!(expect_err(got).field.contains("actions"));
 }
+
+#[test]
+fn the_scan_path_setting_reaches_the_worlds_and_a_refused_one_refuses_opens() {
+    // the default: the widest path this CPU has
+    let mut widest = Sessions::new();
+    open(&mut widest, 1, 2);
+    assert_eq!(widest.env(1).unwrap().scan_path(), ScanPath::best()); // ok: test
+    // a path set: every world of the sessions opened since takes it, with the same bits
+    let mut portable = Sessions::new();
+    portable.set_scan_path(Ok(Some(ScanPath::Portable)));
+    open(&mut portable, 1, 2);
+    let env = portable.env(1).unwrap(); // ok: test
+    assert_eq!(env.scan_path(), ScanPath::Portable);
+    for i in 0..env.num_envs() {
+        assert_eq!(env.world(i).unwrap().scan_path(), ScanPath::Portable); // ok: test
+    }
+    let mut scans = Vec::new();
+    for s in [&mut widest, &mut portable] {
+        let reset = EnvReset {
+            seeds: vec![3, 4],
+            ..Default::default()
+        };
+        expect_obs(s.handle(1, RESET, &reset.encode_to_vec()));
+        let (obs, frame) = expect_obs(s.handle(1, STEP, &step(actions(2))));
+        assert!(frame.iter().any(|&b| b != 0), "scans");
+        scans.push((obs.encode_to_vec(), frame));
+    }
+    assert_eq!(scans[0], scans[1], "every path gives the same bits");
+    // a refused setting: every open is refused, naming the variable and its value
+    let mut refused = Sessions::new();
+    refused.set_scan_path(crate::scan_path::scan_path_from_var("sse9"));
+    for id in [1, 2] {
+        let e = expect_err(refused.handle(id, OPEN, &open_msg(1).encode_to_vec()));
+        assert_eq!(e.code, ErrorCode::InvalidArgument as i32);
+        assert_eq!(e.field, "PADDOCK_SCAN_PATH");
+        assert!(e.message.contains("\"sse9\""), "{}", e.message);
+    }
+    assert_eq!(refused.count(), 0);
+}
