@@ -128,6 +128,49 @@ fn the_scan_path_variable_sets_the_default_path_and_bad_values_are_refused() {
 }
 
 #[test]
+fn the_scan_path_variable_reaches_the_served_workers() {
+    use std::io::BufRead;
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_paddock"))
+        .args(["serve", "--bind", "tcp://127.0.0.1:0", "--threads", "1"])
+        .env("PADDOCK_SCAN_PATH", "portable")
+        .env("RUST_LOG", "paddock_worker=info")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run paddock serve");
+    let stderr = child.stderr.take().expect("its stderr");
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            // the log's colours out: what is left is `key=value`
+            let mut plain = String::new();
+            let mut chars = line.chars();
+            while let Some(c) = chars.next() {
+                if c == '\u{1b}' {
+                    chars.by_ref().find(|&c| c == 'm');
+                } else {
+                    plain.push(c);
+                }
+            }
+            if plain.contains(" connected ") && tx.send(plain).is_err() {
+                break;
+            }
+        }
+    });
+    let line = rx.recv_timeout(std::time::Duration::from_secs(60));
+    let _ = child.kill();
+    let _ = child.wait();
+    let line = line.expect("the worker logs its connection within a minute");
+    assert!(line.contains("scan_path=portable"), "{line}");
+    assert!(line.contains("sweep_vectors=\"none\""), "{line}");
+}
+
+#[test]
 fn demo_laps_the_default_map_deterministically() {
     let (ok, a, err) = paddock(&["demo", "--json", "--seed", "4"]);
     assert!(ok, "{err}");
