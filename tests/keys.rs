@@ -173,6 +173,35 @@ fn only_allowed_keys_get_in() {
         took < Duration::from_secs(9),
         "the refusal took {took:?}, as long as the reply timeout"
     );
+    // refused while idle, before its first request (the connection is gone by the time
+    // it sends): the library's client says so at once too, instead of blocking in the send
+    for _ in 0..3 {
+        let mut client = paddock_broker::client::Client::connect_with(
+            &front,
+            &paddock_broker::curve::Curve::Client {
+                keys: paddock_broker::curve::KeyPair::generate().expect("key pair"),
+                server_public: paddock_broker::curve::read_public(&broker_pub).expect("broker.pub"),
+            },
+        )
+        .expect("client");
+        client.timeout = Duration::from_secs(30);
+        std::thread::sleep(Duration::from_millis(500));
+        let t0 = Instant::now();
+        let e = client
+            .request(paddock_proto::Body::StatusRequest(
+                paddock_proto::StatusRequest {},
+            ))
+            .expect_err("an unknown key got in");
+        assert!(
+            matches!(e, paddock_broker::client::ClientError::Refused(_)),
+            "{e}"
+        );
+        assert!(
+            t0.elapsed() < Duration::from_secs(9),
+            "the refusal took {:?}",
+            t0.elapsed()
+        );
+    }
     // bob works until his public key is removed
     let out = status_with(&front, &keys.join("bob.key"), &broker_pub);
     assert!(

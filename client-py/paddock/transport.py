@@ -301,12 +301,34 @@ class Connection(MapsAndModels):
         env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid,
                           client_token=self._token)
         getattr(env, field).CopyFrom(msg)
+        if self._monitor is not None and not self._writable():
+            raise errors.BrokerUnavailable(self.endpoint, self.timeout, field)
         try:
             # small frames: a copy is cheaper than zero-copy
             self._sock.send_multipart([env.SerializeToString(), *payload])
         except zmq.Again as e:
             raise errors.BrokerUnavailable(self.endpoint, self.timeout, field) from e
         return rid
+
+    def _writable(self) -> bool:
+        """Whether the socket takes a request within the timeout; raises
+        :class:`errors.KeyRefused` as soon as the broker refuses this client's key. (Once
+        the broker has refused the key the connection is gone and a send would wait for
+        the whole timeout: the refusal waiting in the monitor says so at once.)"""
+        assert self._sock is not None and self._monitor is not None
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLOUT)
+        poller.register(self._monitor, zmq.POLLIN)
+        deadline = time.monotonic() + self.timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            ready = dict(poller.poll(max(1, int(left * 1000))))
+            if self._monitor in ready:
+                self._refused()
+            if self._sock in ready:
+                return True
 
     def receive(self, rid: int, what: str,
                 timeout: float | None = None) -> tuple[str, Message, list[zmq.Frame]]:
@@ -348,8 +370,6 @@ class Connection(MapsAndModels):
         assert self._sock is not None
         if self._monitor is None:
             return bool(self._sock.poll(timeout_ms, zmq.POLLIN))
-        from zmq.utils.monitor import recv_monitor_message
-
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         poller.register(self._monitor, zmq.POLLIN)
@@ -362,14 +382,22 @@ class Connection(MapsAndModels):
             if self._sock in ready:
                 return True
             if self._monitor in ready:
-                event = recv_monitor_message(self._monitor)
-                if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
-                    detail = (f"ZAP status {event['value']}: its public key is not in the "
-                              "broker's allowed client keys")
-                else:
-                    detail = (f"CURVE handshake failed (protocol error {event['value']:#x}): check "
-                              "the broker's public key file and that the broker uses CURVE")
-                raise errors.KeyRefused(self.endpoint, self._fingerprint, detail)
+                self._refused()
+
+    def _refused(self) -> None:
+        """Raises :class:`errors.KeyRefused` for the handshake failure waiting in the
+        monitor."""
+        assert self._monitor is not None
+        from zmq.utils.monitor import recv_monitor_message
+
+        event = recv_monitor_message(self._monitor)
+        if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+            detail = (f"ZAP status {event['value']}: its public key is not in the "
+                      "broker's allowed client keys")
+        else:
+            detail = (f"CURVE handshake failed (protocol error {event['value']:#x}): check "
+                      "the broker's public key file and that the broker uses CURVE")
+        raise errors.KeyRefused(self.endpoint, self._fingerprint, detail)
 
     def request(self, field: str, msg: Message, expect: str | Iterable[str],
                 timeout: float | None = None,

@@ -68,6 +68,15 @@ def test_client_with_keys_gets_in_and_without_is_refused(monkeypatch: pytest.Mon
                     c.status()
             assert fingerprint(_read_keys(stranger_key)["public"]) in str(refused.value)
             assert "refused this client's key" in str(refused.value)
+            # refused before the first request (the handshake fails while the client is
+            # idle, and the connection is gone when it sends): still said at once
+            for _ in range(3):
+                with Connection(front, timeout=30.0) as c:
+                    time.sleep(0.5)
+                    started = time.monotonic()
+                    with pytest.raises(errors.KeyRefused):
+                        c.status()
+                    assert time.monotonic() - started < 10, "the refusal waited for the timeout"
             # a key file that is not one
             bad = os.path.join(d, "bad.key")
             with open(bad, "w", encoding="utf-8") as f:
