@@ -148,6 +148,7 @@ impl Client {
         let id = self.next_id;
         self.next_id += 1;
         let header = paddock_proto::encode_with_token(id, self.token.clone(), body);
+        self.writable()?;
         let flags = if payload.is_empty() { 0 } else { zmq::SNDMORE };
         self.socket.send(header, flags).map_err(ClientError::Send)?;
         let n = payload.len();
@@ -156,6 +157,35 @@ impl Client {
             self.socket.send(frame, flags).map_err(ClientError::Send)?;
         }
         Ok(id)
+    }
+
+    /// Returns once the socket takes a message: at once, but for a CURVE client whose key
+    /// the broker refused (the connection is then gone, and a send would block for good),
+    /// which gets the refusal, or a timeout after [`Client::timeout`].
+    fn writable(&self) -> Result<(), ClientError> {
+        let Some(handshake) = &self.handshake else {
+            return Ok(());
+        };
+        let t0 = Instant::now();
+        loop {
+            let left = self.timeout.saturating_sub(t0.elapsed());
+            let ms = left.as_millis().min(i64::MAX as u128) as i64;
+            let mut items = [
+                self.socket.as_poll_item(zmq::POLLOUT),
+                handshake.socket().as_poll_item(zmq::POLLIN),
+            ];
+            zmq::poll(&mut items, ms).map_err(zmq_err("poll"))?;
+            let (writable, event) = (items[0].is_writable(), items[1].is_readable());
+            if event && let Some(failure) = handshake.failure() {
+                return Err(ClientError::Refused(failure));
+            }
+            if writable {
+                return Ok(());
+            }
+            if !event {
+                return Err(ClientError::Timeout(self.timeout));
+            }
+        }
     }
 
     /// Receives the next message, whatever request it answers.
