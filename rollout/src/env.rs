@@ -236,19 +236,10 @@ impl VecEnv {
         self.config.learners + self.config.opponents.len()
     }
 
-    /// Takes every world's LIDAR scans on `path` (see `World::set_scan_path`): the same
+    /// Takes every world's LIDAR scans on `path` (see `Worlds::set_scan_path`): the same
     /// bits, another speed; an error, changing nothing, if this CPU cannot run it.
     pub fn set_scan_path(&mut self, path: ScanPath) -> Result<(), ScanPathError> {
-        if !path.supported() {
-            return Err(ScanPathError {
-                path,
-                features: paddock_sim::lidar::cpu_features(),
-            });
-        }
-        for i in 0..self.worlds.len() {
-            self.worlds.world_mut(i).set_scan_path(path)?;
-        }
-        Ok(())
+        self.worlds.set_scan_path(path)
     }
 
     /// The code path of the worlds' LIDAR scans.

@@ -15,6 +15,7 @@ use std::sync::Arc;
 
 use super::{Action, Observation, Starts, StepEvents, World, WorldConfig, WorldError};
 use crate::circuit::Circuit;
+use crate::lidar::{Lidar, ScanPath, ScanPathError};
 
 /// Values per car in [`PackedObservations::states`]: x, y, theta, body-frame vx and vy,
 /// yaw rate, steering angle.
@@ -249,6 +250,24 @@ impl Worlds {
         &self.events[i]
     }
 
+    /// Takes every world's LIDAR scans on `path` (see [`World::set_scan_path`]): worlds
+    /// that shared one LIDAR's tables share its replacement's (a copy per world would
+    /// multiply the tables a batch step reads). An error, changing nothing, if this CPU
+    /// cannot run the path.
+    pub fn set_scan_path(&mut self, path: ScanPath) -> Result<(), ScanPathError> {
+        let mut replaced: Vec<(Arc<Lidar>, Arc<Lidar>)> = Vec::new();
+        for w in &mut self.worlds {
+            if let Some((_, new)) = replaced.iter().find(|(old, _)| Arc::ptr_eq(old, &w.lidar)) {
+                w.lidar = new.clone();
+                continue;
+            }
+            let old = w.lidar.clone();
+            w.set_scan_path(path)?;
+            replaced.push((old, w.lidar.clone()));
+        }
+        Ok(())
+    }
+
     /// Start an episode in world `i` (see [`World::reset`]).
     pub fn reset(&mut self, i: usize, seed: u64, starts: &Starts) -> Result<(), WorldError> {
         self.worlds[i].reset(seed, starts).map(|_| ())
@@ -390,5 +409,24 @@ impl<'a> WorldsMut<'a> {
     /// Write every world's current observation into `out` (after resets).
     pub fn pack(&self, out: &mut PackedObservations<'_>) -> Result<(), WorldError> {
         pack(self.worlds, out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::circuit::Circuits;
+
+    #[test]
+    fn a_scan_path_set_on_the_batch_keeps_its_worlds_sharing_one_lidar() {
+        let circuit = Circuits::new().get("lakeside").expect("a shipped map");
+        let mut worlds = Worlds::new(circuit, WorldConfig::default(), 4).expect("worlds");
+        worlds
+            .set_scan_path(ScanPath::Portable)
+            .expect("every CPU runs the portable path");
+        for w in worlds.iter() {
+            assert_eq!(w.scan_path(), ScanPath::Portable);
+            assert!(Arc::ptr_eq(&w.lidar, &worlds.world(0).lidar));
+        }
     }
 }
