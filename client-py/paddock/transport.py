@@ -301,7 +301,9 @@ class Connection(MapsAndModels):
         env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid,
                           client_token=self._token)
         getattr(env, field).CopyFrom(msg)
-        if self._monitor is not None and not self._writable():
+        # with CURVE, a key refused while the connection sat idle: the connection is gone
+        # and the send would wait its whole timeout, so wait for it here, watching for that
+        if self._monitor is not None and not self._ready(zmq.POLLOUT, int(self.timeout * 1000)):
             raise errors.BrokerUnavailable(self.endpoint, self.timeout, field)
         try:
             # small frames: a copy is cheaper than zero-copy
@@ -309,26 +311,6 @@ class Connection(MapsAndModels):
         except zmq.Again as e:
             raise errors.BrokerUnavailable(self.endpoint, self.timeout, field) from e
         return rid
-
-    def _writable(self) -> bool:
-        """Whether the socket takes a request within the timeout; raises
-        :class:`errors.KeyRefused` as soon as the broker refuses this client's key. (Once
-        the broker has refused the key the connection is gone and a send would wait for
-        the whole timeout: the refusal waiting in the monitor says so at once.)"""
-        assert self._sock is not None and self._monitor is not None
-        poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLOUT)
-        poller.register(self._monitor, zmq.POLLIN)
-        deadline = time.monotonic() + self.timeout
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return False
-            ready = dict(poller.poll(max(1, int(left * 1000))))
-            if self._monitor in ready:
-                self._refused()
-            if self._sock in ready:
-                return True
 
     def receive(self, rid: int, what: str,
                 timeout: float | None = None) -> tuple[str, Message, list[zmq.Frame]]:
@@ -338,7 +320,7 @@ class Connection(MapsAndModels):
         deadline = time.monotonic() + limit
         while True:
             left = deadline - time.monotonic()
-            ready = left > 0 and self._wait(max(1, int(left * 1000)))
+            ready = left > 0 and self._ready(zmq.POLLIN, max(1, int(left * 1000)))
             if not ready:
                 # a late reply must not be read as the answer to a later request: start over
                 self.close()
@@ -364,14 +346,15 @@ class Connection(MapsAndModels):
                 raise errors.from_reply(e.code, e.field, e.message)
             return body, msg, frames[1:]
 
-    def _wait(self, timeout_ms: int) -> bool:
-        """Whether a reply is waiting within ``timeout_ms``; raises
+    def _ready(self, flags: int, timeout_ms: int) -> bool:
+        """Whether the socket is ready for ``flags`` (``POLLIN``: a reply is waiting;
+        ``POLLOUT``: it takes a request) within ``timeout_ms``; raises
         :class:`errors.KeyRefused` as soon as the broker refuses this client's key."""
         assert self._sock is not None
         if self._monitor is None:
-            return bool(self._sock.poll(timeout_ms, zmq.POLLIN))
+            return bool(self._sock.poll(timeout_ms, flags))
         poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLIN)
+        poller.register(self._sock, flags)
         poller.register(self._monitor, zmq.POLLIN)
         deadline = time.monotonic() + timeout_ms / 1000
         while True:
@@ -457,7 +440,7 @@ class Connection(MapsAndModels):
                     raise errors.BrokerNotAnswering(self.endpoint, value, field)
                 if deadline is not None:
                     value = min(value, deadline - now)
-                if not self._wait(max(1, int(value * 1000))):
+                if not self._ready(zmq.POLLIN, max(1, int(value * 1000))):
                     continue
                 frames = self._sock.recv_multipart(copy=False)  # type: ignore[union-attr]
                 env = pb.Envelope()
