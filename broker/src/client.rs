@@ -148,7 +148,11 @@ impl Client {
         let id = self.next_id;
         self.next_id += 1;
         let header = paddock_proto::encode_with_token(id, self.token.clone(), body);
-        self.writable()?;
+        // with CURVE, a key refused while the connection sat idle: the connection is gone
+        // and a send would block for good, so wait for it here, watching for that
+        if self.handshake.is_some() && !self.ready(zmq::POLLOUT, Instant::now(), self.timeout)? {
+            return Err(ClientError::Timeout(self.timeout));
+        }
         let flags = if payload.is_empty() { 0 } else { zmq::SNDMORE };
         self.socket.send(header, flags).map_err(ClientError::Send)?;
         let n = payload.len();
@@ -159,31 +163,34 @@ impl Client {
         Ok(id)
     }
 
-    /// Returns once the socket takes a message: at once, but for a CURVE client whose key
-    /// the broker refused (the connection is then gone, and a send would block for good),
-    /// which gets the refusal, or a timeout after [`Client::timeout`].
-    fn writable(&self) -> Result<(), ClientError> {
-        let Some(handshake) = &self.handshake else {
-            return Ok(());
-        };
-        let t0 = Instant::now();
+    /// Whether the socket is ready for `events` (`POLLIN`: a message waits; `POLLOUT`: it
+    /// takes one) by `timeout` after `t0`, or the broker's refusal of this client's key,
+    /// whichever comes first.
+    fn ready(
+        &self,
+        events: zmq::PollEvents,
+        t0: Instant,
+        timeout: Duration,
+    ) -> Result<bool, ClientError> {
         loop {
-            let left = self.timeout.saturating_sub(t0.elapsed());
+            let left = timeout.saturating_sub(t0.elapsed());
             let ms = left.as_millis().min(i64::MAX as u128) as i64;
+            let Some(handshake) = &self.handshake else {
+                return Ok(self.socket.poll(events, ms).map_err(zmq_err("poll"))? > 0);
+            };
             let mut items = [
-                self.socket.as_poll_item(zmq::POLLOUT),
+                self.socket.as_poll_item(events),
                 handshake.socket().as_poll_item(zmq::POLLIN),
             ];
             zmq::poll(&mut items, ms).map_err(zmq_err("poll"))?;
-            let (writable, event) = (items[0].is_writable(), items[1].is_readable());
-            if event && let Some(failure) = handshake.failure() {
+            if items[0].get_revents().intersects(events) {
+                return Ok(true);
+            }
+            if !items[1].is_readable() {
+                return Ok(false);
+            }
+            if let Some(failure) = handshake.failure() {
                 return Err(ClientError::Refused(failure));
-            }
-            if writable {
-                return Ok(());
-            }
-            if !event {
-                return Err(ClientError::Timeout(self.timeout));
             }
         }
     }
@@ -197,31 +204,8 @@ impl Client {
             std::thread::yield_now();
             ready = self.socket.poll(zmq::POLLIN, 0).map_err(zmq_err("poll"))?;
         }
-        while ready == 0 {
-            let left = timeout.saturating_sub(t0.elapsed());
-            let ms = left.as_millis().min(i64::MAX as u128) as i64;
-            let Some(handshake) = &self.handshake else {
-                ready = self.socket.poll(zmq::POLLIN, ms).map_err(zmq_err("poll"))?;
-                break;
-            };
-            // wait for the reply or a refusal of this client's key, whichever comes first
-            let mut items = [
-                self.socket.as_poll_item(zmq::POLLIN),
-                handshake.socket().as_poll_item(zmq::POLLIN),
-            ];
-            zmq::poll(&mut items, ms).map_err(zmq_err("poll"))?;
-            let (reply, event) = (items[0].is_readable(), items[1].is_readable());
-            if reply {
-                ready = 1;
-            } else if event {
-                if let Some(failure) = handshake.failure() {
-                    return Err(ClientError::Refused(failure));
-                }
-            } else {
-                break;
-            }
-        }
-        if ready == 0 {
+        // wait for the reply or a refusal of this client's key, whichever comes first
+        if ready == 0 && !self.ready(zmq::POLLIN, t0, timeout)? {
             return Err(ClientError::Timeout(timeout));
         }
         let header = self.socket.recv_msg(0).map_err(zmq_err("recv"))?;
