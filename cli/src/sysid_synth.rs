@@ -349,7 +349,7 @@ fn run_day(args: &SynthArgs, full_state: bool) -> Result<()> {
     let sidecar = dir.join("truth.json");
     std::fs::write(&sidecar, serde_json::to_string_pretty(&truth_json)?)
         .with_context(|| format!("writing {}", sidecar.display()))?;
-    println!(
+    outln!(
         "wrote {} runs of {seconds} s into {} (hidden: {}) and {}",
         args.runs,
         dir.display(),

@@ -80,6 +80,69 @@ fn a_closed_pipe_ends_every_printing_command_quietly() {
     }
 }
 
+/// The commands that write files and then say what they wrote: the files are written,
+/// and the closed pipe ends them as quietly (`sysid synth --runs` printed its summary
+/// with `println!`, which panicked there).
+#[test]
+fn a_closed_pipe_ends_every_file_writing_command_quietly() {
+    let dir = scratch("closed-pipe-files");
+    let at = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let (csv, runs, mcap) = (at("rec.csv"), at("runs"), at("runs.mcap"));
+    let (keys, maps, tuned) = (at("keys"), at("maps"), at("tune"));
+    for args in [
+        &["sysid", "synth", "--seconds", "5", "--out", &csv][..],
+        &[
+            "sysid",
+            "synth",
+            "--manoeuvre",
+            "step",
+            "--runs",
+            "2",
+            "--out",
+            &runs,
+        ],
+        &[
+            "sysid",
+            "synth",
+            "--manoeuvre",
+            "arc",
+            "--runs",
+            "2",
+            "--out",
+            &mcap,
+        ],
+        &["keys", "generate", "--out", &keys],
+        &[
+            "maps", "generate", "--name", "gen", "--seed", "3", "--out", &maps,
+        ],
+        &[
+            "tune",
+            "--generations",
+            "2",
+            "--popsize",
+            "4",
+            "--seeds",
+            "1",
+            "--holdout",
+            "2",
+            "--out",
+            &tuned,
+        ],
+    ] {
+        into_closed_pipe(args);
+    }
+    for written in [
+        "rec.csv",
+        "runs/truth.json",
+        "keys",
+        "maps/gen",
+        "tune/result.json",
+    ] {
+        assert!(dir.join(written).exists(), "{written} was not written");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn head_reading_one_line_ends_the_pipeline_with_status_0() {
     let exe = env!("CARGO_BIN_EXE_paddock");
