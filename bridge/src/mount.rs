@@ -23,6 +23,11 @@ use paddock_sim::lidar::LidarConfig;
 use crate::msg::Transform;
 use crate::scan::fill_gaps;
 
+/// The farthest a laser may sit from `base_link` along either axis, m.
+pub const MAX_OFFSET: f64 = 5.0;
+/// The largest yaw of a laser on the car, either way, rad (two turns in all).
+pub const MAX_YAW: f64 = 2.0 * std::f64::consts::PI;
+
 /// The laser's pose on the car, in `base_link`: position (m), yaw (rad) and whether it
 /// is mounted upside down (its beams then sweep clockwise seen from above).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -64,12 +69,12 @@ impl LaserMount {
 
     /// Check the numbers, naming the offender.
     pub fn validate(&self) -> Result<(), String> {
-        for (field, v, lim) in [("laser x", self.x, 5.0), ("laser y", self.y, 5.0)] {
-            if !(v.is_finite() && v.abs() <= lim) {
-                return Err(format!("{field} = {v}: must be within +-{lim} m"));
+        for (field, v) in [("laser x", self.x), ("laser y", self.y)] {
+            if !(v.is_finite() && v.abs() <= MAX_OFFSET) {
+                return Err(format!("{field} = {v}: must be within +-{MAX_OFFSET} m"));
             }
         }
-        if !(self.yaw.is_finite() && self.yaw.abs() <= 2.0 * std::f64::consts::PI) {
+        if !(self.yaw.is_finite() && self.yaw.abs() <= MAX_YAW) {
             return Err(format!(
                 "laser yaw = {}: must be within +-2 pi rad",
                 self.yaw

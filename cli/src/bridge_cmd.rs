@@ -8,7 +8,7 @@ use crate::args::{self, outln};
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
-use paddock_bridge::mount::LaserMount;
+use paddock_bridge::mount::{LaserMount, MAX_OFFSET, MAX_YAW};
 use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
 use paddock_bridge::ros::Frames;
 use paddock_bridge::safety::SafetyConfig;
@@ -83,23 +83,23 @@ struct DriveArgs {
     ttc_corridor: f64,
     /// Stop while more than this fraction of the scan's beams within 20 degrees of
     /// straight ahead are invalid (REP 117: NaN or an error code; 1: never).
-    #[arg(long, default_value_t = 0.25)]
+    #[arg(long, default_value_t = 0.25, value_parser = args::number(0.0, 1.0))]
     max_invalid_ahead: f64,
     /// How fast a sensor's header-stamp clock may fall behind this host's, s/s: the
     /// bound of the clock-offset estimate behind the stamp age (a SIL car slower than
     /// real time, `--rate R` < 1, needs at least 1 - R; 1 turns the stamp age off).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, value_parser = args::number(0.0, 1.0))]
     max_clock_drift: f64,
     /// The laser's position ahead of base_link, m. Any --laser-* flag sets the mount;
     /// without them it comes from /tf_static (base frame -> laser frame), and until
     /// that arrives the laser is taken to sit where the simulator's does (base_link).
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, value_parser = args::number(-MAX_OFFSET, MAX_OFFSET))]
     laser_x: Option<f64>,
     /// The laser's position to the left of base_link, m.
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, value_parser = args::number(-MAX_OFFSET, MAX_OFFSET))]
     laser_y: Option<f64>,
-    /// The laser's yaw on the car, rad (pi: looking backwards).
-    #[arg(long, allow_hyphen_values = true)]
+    /// The laser's yaw on the car, rad (pi: looking backwards; within two turns).
+    #[arg(long, allow_hyphen_values = true, value_parser = laser_yaw)]
     laser_yaw: Option<f64>,
     /// The laser is mounted upside down (its beams sweep clockwise).
     #[arg(long)]
@@ -205,6 +205,17 @@ struct ExportArgs {
     /// The recording's odometry topic.
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
+}
+
+/// The parser of `--laser-yaw`: `args::number(-MAX_YAW, MAX_YAW)`, its range said as
+/// two turns (`[-2 pi, 2 pi]`) rather than in sixteen digits.
+fn laser_yaw(text: &str) -> Result<f64, String> {
+    let range = "[-2 pi, 2 pi]";
+    match text.trim().parse::<f64>() {
+        Err(_) => Err(format!("{text:?} is not a number in {range}")),
+        Ok(_) => args::number(-MAX_YAW, MAX_YAW)(text)
+            .map_err(|_| format!("{text} is out of range: must be a number in {range}")),
+    }
 }
 
 pub fn run(args: &BridgeArgs, circuits: &Circuits) -> Result<()> {

@@ -316,7 +316,7 @@ pub fn run(args: &PerfArgs, circuits: &Circuits) -> Result<()> {
         .with_context(|| format!("loading map {name:?}"))?;
     anyhow::ensure!(
         (1..=64).contains(&args.agents),
-        "--agents {} is out of range (1..=64)",
+        "--agents {} is out of range: must be a whole number in [1, 64]",
         args.agents
     );
     let path = match args.scan_path.as_deref() {

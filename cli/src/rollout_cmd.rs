@@ -128,7 +128,7 @@ pub struct RolloutArgs {
     #[arg(long, value_name = "FILE")]
     video: Option<PathBuf>,
     /// The episode --video shows (0-based).
-    #[arg(long, default_value_t = 0, value_name = "K")]
+    #[arg(long, default_value_t = 0, value_name = "K", value_parser = args::whole::<usize>(0, 999_999))]
     video_episode: usize,
     #[command(flatten)]
     video_opts: VideoOptions,
@@ -197,9 +197,9 @@ pub fn rollout(args: &RolloutArgs, circuits: &Circuits) -> Result<()> {
     if let Some(path) = &args.video {
         if args.video_episode >= args.episodes {
             bail!(
-                "--video-episode {}: there are {} episodes (0..{})",
+                "--video-episode {} is out of range: must be a whole number in [0, {}] (there are {} episodes)",
                 args.video_episode,
-                args.episodes,
+                args.episodes - 1,
                 args.episodes
             );
         }

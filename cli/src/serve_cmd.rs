@@ -101,7 +101,7 @@ pub struct ServeArgs {
     /// Stop (as Ctrl-C does) once the process with this id is no longer this server's
     /// parent, i.e. it exited or was killed: a server a program started never outlives
     /// it. The Python client passes its own id.
-    #[arg(long, value_name = "PID")]
+    #[arg(long, value_name = "PID", value_parser = args::whole::<u32>(1, u32::MAX.into()))]
     pub parent_pid: Option<u32>,
     /// Vehicle YAML (as `paddock sysid` writes it) of every car whose request names no
     /// vehicle (default: the f1tenth_gym vehicle); requests that carry one keep theirs.

@@ -24,6 +24,8 @@ use paddock_render::{Frame, Renderer};
 use paddock_rollout::{EpisodeResult, Scenario};
 use paddock_sim::circuit::Circuits;
 
+use crate::args;
+
 /// Physics steps per second (the simulator's 0.01 s timestep).
 const STEPS_PER_S: u32 = 100;
 
@@ -32,25 +34,42 @@ const STEPS_PER_S: u32 = 100;
 pub struct VideoOptions {
     /// Video frames per second of simulated time; must divide 100 (1, 2, 4, 5, 10, 20,
     /// 25, 50 or 100).
-    #[arg(long, default_value_t = 25, value_name = "N")]
+    #[arg(long, default_value_t = 25, value_name = "N", value_parser = fps)]
     pub fps: u32,
     /// Video frame width in pixels (even, 160..=2048); the height follows the track's shape.
-    #[arg(long, default_value_t = paddock_render::DEFAULT_WIDTH, value_name = "PX")]
+    #[arg(
+        long,
+        default_value_t = paddock_render::DEFAULT_WIDTH,
+        value_name = "PX",
+        value_parser = args::whole::<u32>(paddock_render::MIN_WIDTH as i128, paddock_render::MAX_WIDTH as i128)
+    )]
     pub video_width: u32,
 }
 
+/// What `--fps` may be: a whole number that divides [`STEPS_PER_S`] (one frame every
+/// whole number of 0.01 s steps).
+const FPS_RANGE: &str = "must be a whole number that divides 100 (one frame every whole number of 0.01 s steps): 1, 2, 4, 5, 10, 20, 25, 50 or 100";
+
+/// The parser of `--fps`, in the wording of every numeric flag (`args`).
+fn fps(text: &str) -> Result<u32, String> {
+    let v: u32 = args::whole::<u32>(1, STEPS_PER_S.into())(text)
+        .map_err(|_| format!("{text} is out of range: {FPS_RANGE}"))?;
+    if !STEPS_PER_S.is_multiple_of(v) {
+        return Err(format!("{text} is out of range: {FPS_RANGE}"));
+    }
+    Ok(v)
+}
+
 impl VideoOptions {
-    /// The trajectory decimation that gives one sample per frame.
+    /// The trajectory decimation that gives one sample per frame. (The flags' parsers
+    /// check the same; this checks options made in code.)
     pub fn decimation(&self) -> Result<u32> {
         if self.fps == 0 || !STEPS_PER_S.is_multiple_of(self.fps) {
-            bail!(
-                "--fps {}: must divide {STEPS_PER_S} (one frame every whole number of 0.01 s steps): 1, 2, 4, 5, 10, 20, 25, 50 or 100",
-                self.fps
-            );
+            bail!("--fps {} is out of range: {FPS_RANGE}", self.fps);
         }
         if !(paddock_render::MIN_WIDTH..=paddock_render::MAX_WIDTH).contains(&self.video_width) {
             bail!(
-                "--video-width {}: must be in {}..={} pixels",
+                "--video-width {} is out of range: must be a whole number in [{}, {}]",
                 self.video_width,
                 paddock_render::MIN_WIDTH,
                 paddock_render::MAX_WIDTH
@@ -443,7 +462,22 @@ mod tests {
         assert!(odd.decimation().unwrap_err().to_string().contains("even"));
         for bad in [0, 3, 30, 200] {
             let e = opts(bad).decimation().unwrap_err().to_string();
-            assert!(e.starts_with(&format!("--fps {bad}:")), "{e}");
+            assert!(
+                e.starts_with(&format!("--fps {bad} is out of range:")),
+                "{e}"
+            );
+        }
+        // the flag's parser: the same rule, in the wording of every numeric flag
+        assert_eq!(fps("25"), Ok(25));
+        assert_eq!(fps("100"), Ok(100));
+        for bad in ["0", "7", "30", "200", "-1", "2.5", "x"] {
+            let e = fps(bad).unwrap_err();
+            assert!(
+                e.starts_with(&format!(
+                    "{bad} is out of range: must be a whole number that divides 100"
+                )),
+                "{e}"
+            );
         }
         assert_eq!(Format::of(Path::new("a/b.GIF")).unwrap(), Format::Gif);
         assert_eq!(Format::of(Path::new("b.mp4")).unwrap(), Format::Ffmpeg);

@@ -202,6 +202,104 @@ fn numeric_flags_have_ranges_with_one_wording() {
             "--episodes",
             "\"many\" is not a whole number in [1, 1000000]",
         ),
+        // flags that once had a second, narrower range checked later in other words
+        (
+            &[
+                "sysid",
+                "synth",
+                "--manoeuvre",
+                "step",
+                "--runs",
+                "501",
+                "--out",
+                "x",
+            ],
+            "--runs",
+            "501 is out of range: must be a whole number in [1, 500]",
+        ),
+        (
+            &[
+                "sysid",
+                "synth",
+                "--manoeuvre",
+                "step",
+                "--rate",
+                "300",
+                "--out",
+                "x",
+            ],
+            "--rate",
+            "300 is out of range: must be a number in [5, 200]",
+        ),
+        // flags that took clap's own wording, or were checked only once running
+        (
+            &["rollout", "--fps", "-1"],
+            "--fps",
+            "-1 is out of range: must be a whole number that divides 100",
+        ),
+        (
+            &["rollout", "--video-width", "99999"],
+            "--video-width",
+            "99999 is out of range: must be a whole number in [160, 2048]",
+        ),
+        (
+            &["rollout", "--video-episode", "-1"],
+            "--video-episode",
+            "-1 is out of range: must be a whole number in [0, 999999]",
+        ),
+        (
+            &["serve", "--parent-pid", "-1"],
+            "--parent-pid",
+            "-1 is out of range: must be a whole number in [1, 4294967295]",
+        ),
+        (
+            &[
+                "bridge",
+                "drive",
+                "--driver",
+                "pure-pursuit",
+                "--max-invalid-ahead",
+                "-1",
+            ],
+            "--max-invalid-ahead",
+            "-1 is out of range: must be a number in [0, 1]",
+        ),
+        (
+            &[
+                "bridge",
+                "drive",
+                "--driver",
+                "pure-pursuit",
+                "--max-clock-drift",
+                "inf",
+            ],
+            "--max-clock-drift",
+            "inf is out of range: must be a number in [0, 1]",
+        ),
+        (
+            &[
+                "bridge",
+                "drive",
+                "--driver",
+                "pure-pursuit",
+                "--laser-x",
+                "nan",
+            ],
+            "--laser-x",
+            "nan is out of range: must be a number in [-5, 5]",
+        ),
+        (
+            &[
+                "bridge",
+                "drive",
+                "--driver",
+                "pure-pursuit",
+                "--laser-yaw",
+                "7",
+            ],
+            "--laser-yaw",
+            "7 is out of range: must be a number in [-2 pi, 2 pi]",
+        ),
     ] {
         let (code, _, err) = paddock(args);
         assert_eq!(code, Some(2), "{args:?}: {err}");

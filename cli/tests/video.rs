@@ -142,10 +142,17 @@ fn video_flags_are_checked_before_anything_runs() {
     bad(&["rollout", "--video", avi.to_str().unwrap()], ".gif");
     let gif = dir.path().join("a.gif");
     let g = gif.to_str().unwrap();
-    bad(&["rollout", "--fps", "30", "--video", g], "--fps 30");
+    bad(
+        &["rollout", "--fps", "30", "--video", g],
+        "for '--fps <N>': 30 is out of range: must be a whole number that divides 100",
+    );
     bad(
         &["rollout", "--video-width", "5", "--video", g],
-        "--video-width 5",
+        "for '--video-width <PX>': 5 is out of range: must be a whole number in [160, 2048]",
+    );
+    bad(
+        &["rollout", "--video-width", "801", "--video", g],
+        "--video-width 801: must be even",
     );
     bad(
         &[
@@ -157,7 +164,7 @@ fn video_flags_are_checked_before_anything_runs() {
             "--video",
             g,
         ],
-        "--video-episode 2",
+        "--video-episode 2 is out of range: must be a whole number in [0, 1] (there are 2 episodes)",
     );
     let d = dir.path().to_str().unwrap();
     bad(
