@@ -148,13 +148,12 @@ impl Client {
         let id = self.next_id;
         self.next_id += 1;
         let header = paddock_proto::encode_with_token(id, self.token.clone(), body);
-        // with CURVE, a key refused while the connection sat idle: the connection is gone
-        // and a send would block for good, so wait for it here, watching for that
-        if self.handshake.is_some() && !self.ready(zmq::POLLOUT, Instant::now(), self.timeout)? {
-            return Err(ClientError::Timeout(self.timeout));
-        }
         let flags = if payload.is_empty() { 0 } else { zmq::SNDMORE };
-        self.socket.send(header, flags).map_err(ClientError::Send)?;
+        if self.handshake.is_some() {
+            self.send_watched(&header, flags)?;
+        } else {
+            self.socket.send(header, flags).map_err(ClientError::Send)?;
+        }
         let n = payload.len();
         for (i, frame) in payload.into_iter().enumerate() {
             let flags = if i + 1 < n { zmq::SNDMORE } else { 0 };
@@ -163,9 +162,32 @@ impl Client {
         Ok(id)
     }
 
+    /// Sends a request's first frame with CURVE, watching the handshake. A key refused
+    /// while the connection sat idle leaves no connection to send on, and a blocking send
+    /// (this socket has no send timeout) would wait for good. libzmq keeps reconnecting
+    /// meanwhile, each attempt refused again, so the socket can take a message when
+    /// polled and have no connection an instant later: the send does not block, and on
+    /// `EAGAIN` the wait resumes, watching for the refusal. (Once the first frame is taken
+    /// the rest of the message follows it without blocking.)
+    fn send_watched(&self, header: &[u8], flags: i32) -> Result<(), ClientError> {
+        let t0 = Instant::now();
+        loop {
+            if !self.ready(zmq::POLLOUT, t0, self.timeout)? {
+                return Err(ClientError::Timeout(self.timeout));
+            }
+            match self.socket.send(header, flags | zmq::DONTWAIT) {
+                Ok(()) => return Ok(()),
+                // the connection went between the poll and the send
+                Err(zmq::Error::EAGAIN) => std::thread::sleep(Duration::from_millis(1)),
+                Err(e) => return Err(ClientError::Send(e)),
+            }
+        }
+    }
+
     /// Whether the socket is ready for `events` (`POLLIN`: a message waits; `POLLOUT`: it
     /// takes one) by `timeout` after `t0`, or the broker's refusal of this client's key,
-    /// whichever comes first.
+    /// whichever comes first (a refusal waiting wins: between two refused attempts the
+    /// socket can look ready).
     fn ready(
         &self,
         events: zmq::PollEvents,
@@ -183,14 +205,15 @@ impl Client {
                 handshake.socket().as_poll_item(zmq::POLLIN),
             ];
             zmq::poll(&mut items, ms).map_err(zmq_err("poll"))?;
+            let event = items[1].is_readable();
+            if event && let Some(failure) = handshake.failure() {
+                return Err(ClientError::Refused(failure));
+            }
             if items[0].get_revents().intersects(events) {
                 return Ok(true);
             }
-            if !items[1].is_readable() {
+            if !event {
                 return Ok(false);
-            }
-            if let Some(failure) = handshake.failure() {
-                return Err(ClientError::Refused(failure));
             }
         }
     }

@@ -301,16 +301,35 @@ class Connection(MapsAndModels):
         env = pb.Envelope(protocol_version=PROTOCOL_VERSION, request_id=rid,
                           client_token=self._token)
         getattr(env, field).CopyFrom(msg)
-        # with CURVE, a key refused while the connection sat idle: the connection is gone
-        # and the send would wait its whole timeout, so wait for it here, watching for that
-        if self._monitor is not None and not self._ready(zmq.POLLOUT, int(self.timeout * 1000)):
-            raise errors.BrokerUnavailable(self.endpoint, self.timeout, field)
+        # small frames: a copy is cheaper than zero-copy
+        frames = [env.SerializeToString(), *payload]
+        if self._monitor is not None:
+            self._send_watched(field, frames)
+            return rid
         try:
-            # small frames: a copy is cheaper than zero-copy
-            self._sock.send_multipart([env.SerializeToString(), *payload])
+            self._sock.send_multipart(frames)
         except zmq.Again as e:
             raise errors.BrokerUnavailable(self.endpoint, self.timeout, field) from e
         return rid
+
+    def _send_watched(self, field: str, frames: list[bytes]) -> None:
+        """Sends ``frames`` with CURVE, watching the handshake: a key refused while the
+        connection sat idle leaves no connection to send on, and a blocking send would
+        wait its whole timeout there. ZeroMQ keeps reconnecting meanwhile, each attempt
+        refused again, so the socket can be writable when polled and have no connection
+        an instant later: the send does not block, and on ``Again`` the wait resumes,
+        watching for the refusal."""
+        assert self._sock is not None
+        deadline = time.monotonic() + self.timeout
+        while True:
+            left_ms = int((deadline - time.monotonic()) * 1000)
+            if left_ms <= 0 or not self._ready(zmq.POLLOUT, left_ms):
+                raise errors.BrokerUnavailable(self.endpoint, self.timeout, field)
+            try:
+                self._sock.send_multipart(frames, flags=zmq.NOBLOCK)
+                return
+            except zmq.Again:
+                time.sleep(0.001)  # the connection went between the poll and the send
 
     def receive(self, rid: int, what: str,
                 timeout: float | None = None) -> tuple[str, Message, list[zmq.Frame]]:
@@ -362,10 +381,11 @@ class Connection(MapsAndModels):
             if left <= 0:
                 return False
             ready = dict(poller.poll(max(1, int(left * 1000))))
-            if self._sock in ready:
-                return True
+            # the refusal first: the socket can look ready between two refused attempts
             if self._monitor in ready:
                 self._refused()
+            if self._sock in ready:
+                return True
 
     def _refused(self) -> None:
         """Raises :class:`errors.KeyRefused` for the handshake failure waiting in the
