@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from . import errors
+from . import errors, wire
 from ._proto import paddock_pb2 as pb
 from .server import LocalServer
 from .transport import Connection
@@ -191,6 +191,7 @@ class Client:
             raise ValueError("seeds: at least one seed is needed")
         if collision_mode not in _COLLISION:
             raise ValueError(f"collision_mode = {collision_mode!r} is not one of {sorted(_COLLISION)}")
+        laps, num_beams = wire.whole("laps", laps), wire.whole("num_beams", num_beams)
         ref = self.conn.map_ref(map)
         car_yaml = _vehicle_yaml(vehicle_params, vehicle)
         name = self.conn.driver_name(driver)
@@ -201,9 +202,9 @@ class Client:
         for row in p:
             batch.scenarios.append(pb.Scenario(
                 map=ref, agents=[pb.AgentSpec(driver=name, params=row.tolist(), vehicle_yaml=car_yaml)] + others,
-                start_kind=pb.START_RANDOM, laps=int(laps), time_limit=float(time_limit),
+                start_kind=pb.START_RANDOM, laps=laps, time_limit=float(time_limit),
                 collision_mode=_COLLISION[collision_mode],
-                lidar=pb.Lidar(num_beams=int(num_beams), fov=4.7, max_range=30.0, noise_std=0.01),
+                lidar=pb.Lidar(num_beams=num_beams, fov=4.7, max_range=30.0, noise_std=0.01),
                 obstacles=pb.Obstacles(count=0, length=0.4, width=0.4, passage=1.0, start_clearance=4.0),
                 crash_penalty=float(crash_penalty)).SerializeToString())
         for i in range(len(p)):
@@ -249,8 +250,10 @@ class Client:
         """Start a tuning job (CMA-ES over the driver's parameters) run by the broker;
         the defaults are those of ``paddock tune``. ``vehicle`` / ``vehicle_params``: the
         car to tune for (as in :meth:`rollouts`)."""
-        spec = pb.TuneSpec(map=self.conn.map_ref(map), driver=driver, generations=int(generations),
-                           popsize=int(popsize), seeds=int(seeds), holdout=int(holdout),
+        spec = pb.TuneSpec(map=self.conn.map_ref(map), driver=driver,
+                           generations=wire.whole("generations", generations),
+                           popsize=wire.whole("popsize", popsize), seeds=wire.whole("seeds", seeds),
+                           holdout=wire.whole("holdout", holdout),
                            seed=int(seed) % 2**64, crash_penalty=float(crash_penalty),
                            vehicle_yaml=_vehicle_yaml(vehicle_params, vehicle))
         info = self.conn.request("job_submit", pb.JobSubmit(name=name or f"tune {driver}", tune=spec),

@@ -210,11 +210,11 @@ class EnvSession:
                  frame_skip: int = 1, vehicle_yaml: str = "", obstacles: int = 0,
                  params: Mapping[str, float] | None = None,
                  vehicle: str | os.PathLike[str] | None = None) -> None:
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs = {num_envs!r} must be >= 1")
-        if int(num_agents) < 1:
-            raise ValueError(f"num_agents = {num_agents!r} must be >= 1")
-        if not 1 <= int(learners) <= int(num_agents):
+        num_envs = wire.whole("num_envs", num_envs, 1)
+        num_agents = wire.whole("num_agents", num_agents, 1)
+        num_beams, obstacles = wire.whole("num_beams", num_beams), wire.whole("obstacles", obstacles)
+        laps, frame_skip = wire.whole("laps", laps), wire.whole("frame_skip", frame_skip)
+        if not 1 <= wire.whole("learners", learners, 1) <= num_agents:
             raise ValueError(f"learners = {learners!r} must be in 1..num_agents ({num_agents}): "
                              f"the learner drives cars 0..learners, opponents the rest")
         if collision_mode not in _COLLISION:
@@ -297,8 +297,9 @@ class EnvSession:
 
     def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,
               poses: np.ndarray | None = None) -> Frame:
-        msg = pb.EnvReset(seeds=[int(s) % 2**64 for s in (seeds or [])],
-                          envs=[int(i) for i in (envs if envs is not None else [])])
+        msg = pb.EnvReset(seeds=[int(s) % 2**64 for s in (seeds if seeds is not None else [])],
+                          envs=[wire.whole(f"envs[{k}]", i)
+                                for k, i in enumerate(envs if envs is not None else [])])
         if poses is not None:
             p = np.ascontiguousarray(poses, dtype="<f8")
             count = len(envs) if envs is not None else self.num_envs
@@ -310,14 +311,15 @@ class EnvSession:
 
     def step(self, actions: np.ndarray, reset_envs: Sequence[int] = ()) -> Frame:
         a = np.ascontiguousarray(actions, dtype="<f4")
-        msg = pb.EnvStep(actions=a.tobytes(), reset_envs=[int(i) for i in reset_envs])
+        msg = pb.EnvStep(actions=a.tobytes(),
+                         reset_envs=[wire.whole(f"reset_envs[{k}]", i) for k, i in enumerate(reset_envs)])
         return self._frame(self.conn.env(self.session_id, pb.ENV_STEP, msg)[1])
 
     def render(self, envs: Sequence[int] | None = None, width: int = DEFAULT_WIDTH) -> np.ndarray:
         """Top-down frames of ``envs`` (default: env 0) as they are now, shape
         (len(envs), height, width, 3) uint8; the session is not changed."""
-        envs = [0] if envs is None else [int(i) for i in envs]
-        msg = pb.EnvRender(envs=envs, width=int(width))
+        envs = [0] if envs is None else [wire.whole(f"envs[{k}]", i) for k, i in enumerate(envs)]
+        msg = pb.EnvRender(envs=envs, width=wire.whole("width", width))
         image, rgb = wire.image(self.conn.env(self.session_id, pb.ENV_RENDER, msg)[1])
         return frames_of(image, rgb, len(envs))
 

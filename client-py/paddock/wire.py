@@ -16,6 +16,25 @@ from typing import Any
 from . import errors
 from ._proto import paddock_pb2 as pb
 
+U32_MAX = 2**32 - 1
+
+
+def whole(name: str, value: Any, lo: int = 0, hi: int = U32_MAX) -> int:
+    """``value`` as a whole number in ``[lo, hi]`` for the request field ``name``, or a
+    ValueError naming the field and the value (as ``paddock``'s flags word it): without
+    this, a value outside an unsigned 32-bit field was refused by the protobuf runtime
+    as "Value out of range: -1", naming nothing, and a fraction was cut silently."""
+    try:
+        v = int(value)
+        fraction = v != value
+    except (TypeError, ValueError, OverflowError):
+        v, fraction = None, True
+    if v is None or (fraction and not isinstance(value, str)):
+        raise ValueError(f"{name} = {value!r} is not a whole number in [{lo}, {hi}]")
+    if not lo <= v <= hi:
+        raise ValueError(f"{name} = {value!r} is out of range: must be a whole number in [{lo}, {hi}]")
+    return v
+
 def _view(frame: Any) -> memoryview:
     """A read-only view of a received frame (a ``zmq.Frame`` or bytes) without a copy."""
     buf = getattr(frame, "buffer", frame)

@@ -106,6 +106,36 @@ def test_refusals_name_the_field_and_the_session_goes_on() -> None:
         paddock.Client(paddock.IN_PROCESS)
 
 
+def test_whole_number_fields_name_themselves_and_the_session_goes_on() -> None:
+    # A value an unsigned field of the request cannot carry was refused by the protobuf
+    # runtime as "Value out of range: -1", naming nothing, and a fraction was cut.
+    for kw, said in [
+        (dict(num_beams=-1), "num_beams = -1 is out of range: must be a whole number in [0, "),
+        (dict(obstacles=-1), "obstacles = -1 is out of range"),
+        (dict(laps=2**32), "laps = 4294967296 is out of range"),
+        (dict(frame_skip=2.5), "frame_skip = 2.5 is not a whole number"),
+        (dict(num_agents=0), "num_agents = 0 is out of range: must be a whole number in [1, "),
+    ]:
+        with pytest.raises(ValueError) as e:
+            paddock.make_vec(2, paddock.IN_PROCESS, **kw)
+        assert said in str(e.value), (kw, str(e.value))
+    with pytest.raises(ValueError, match=r"num_envs = -1 is out of range"):
+        paddock.make_vec(-1, paddock.IN_PROCESS)
+    with InProcess() as conn:
+        s = paddock.EnvSession(conn, 3, num_beams=16)
+        # indices as numpy arrays, as a vector env passes them
+        s.reset(seeds=np.array([1, 2, 3]), envs=np.array([0, 1, 2]))
+        with pytest.raises(ValueError, match=r"envs\[1\] = -1 is out of range"):
+            s.reset(envs=[0, -1])
+        with pytest.raises(ValueError, match=r"reset_envs\[0\] = -2 is out of range"):
+            s.step(np.zeros((3, 2), np.float32), reset_envs=[-2])
+        with pytest.raises(ValueError, match=r"width = -5 is out of range"):
+            s.render(width=-5)
+        # the session goes on
+        assert s.step(np.zeros((3, 2), np.float32)).scans.shape == (3, 1, 16)
+        s.close()
+
+
 def test_a_map_directory_and_an_onnx_opponent_in_process(tmp_path: Path) -> None:
     onnx = pytest.importorskip("onnx")
     from test_onnx import mlp_model

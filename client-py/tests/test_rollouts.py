@@ -36,6 +36,14 @@ def test_rollout_errors_name_the_field(client: Client) -> None:
     assert "driver" in e.value.field or "no-such-driver" in e.value.message
     with pytest.raises(ValueError):
         client.rollouts("pure-pursuit", defaults, seeds=[])
+    # whole-number fields the request cannot carry, named (not protobuf's bare "Value out
+    # of range")
+    with pytest.raises(ValueError, match=r"laps = -1 is out of range"):
+        client.rollouts("pure-pursuit", defaults, seeds=[1], laps=-1)
+    with pytest.raises(ValueError, match=r"num_beams = 1.5 is not a whole number"):
+        client.rollouts("pure-pursuit", defaults, seeds=[1], num_beams=1.5)
+    with pytest.raises(ValueError, match=r"popsize = -4 is out of range"):
+        client.submit_tune("pure-pursuit", popsize=-4)
 
 
 def test_tune_job_runs_to_a_result(client: Client) -> None:
