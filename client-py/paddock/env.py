@@ -408,7 +408,7 @@ class F110Env(gym.Env):
                  **kwargs: Any) -> None:
         _check_render_mode(render_mode, RENDER_MODES)
         self.render_mode = render_mode
-        self.render_width = int(render_width)
+        self.render_width = wire.whole("render_width", render_width)
         self._window: Window | None = None
         if render_mode == "human":
             self._window = Window(_render_fps(int(kwargs.get("frame_skip", 1))))
@@ -500,14 +500,14 @@ class F110VectorEnv(VectorEnv):
                  render_width: int = DEFAULT_WIDTH, **kwargs: Any) -> None:
         _check_render_mode(render_mode, ["rgb_array"])
         self.render_mode = render_mode
-        self.render_width = int(render_width)
+        self.render_width = wire.whole("render_width", render_width)
         self._owned = _Owned(endpoint, timeout, threads)
         try:
             self.session = EnvSession(self._owned.conn, num_envs, **kwargs)
         except BaseException:
             self._owned.close()
             raise
-        self.num_envs = int(num_envs)
+        self.num_envs = self.session.num_envs
         self.single_observation_space, self.single_action_space = self.session.spaces()
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

@@ -30,6 +30,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv as _ParallelEnv
 
+from . import wire
 from .env import EnvSession, Frame, _Owned, check_contract_keys, contract_space, STATE_SIZE
 from .render import DEFAULT_WIDTH
 
@@ -52,9 +53,7 @@ class ParallelEnv(_ParallelEnv):
                  opponents: Sequence[str | tuple[str, Sequence[float]]] = (),
                  render_mode: str | None = None, render_width: int = DEFAULT_WIDTH,
                  timeout: float = 30.0, threads: int = 0, **kwargs: Any) -> None:
-        learners = int(num_agents)
-        if learners < 1:
-            raise ValueError(f"num_agents = {num_agents!r} must be >= 1")
+        learners = wire.whole("num_agents", num_agents, 1)
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode = {render_mode!r} is not 'rgb_array' (or None)")
         for k in ("learners", "num_envs"):
@@ -62,7 +61,7 @@ class ParallelEnv(_ParallelEnv):
                 raise ValueError(f"{k}: a ParallelEnv is one race of num_agents learner cars")
         self.keys = check_contract_keys(keys)
         self.render_mode = render_mode
-        self.render_width = int(render_width)
+        self.render_width = wire.whole("render_width", render_width)
         self._owned = _Owned(endpoint, timeout, threads)
         try:
             self.session = EnvSession(self._owned.conn, 1,

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from . import wire
 from .env import CONTRACT_KEYS, EnvSession, Frame, _Owned, check_contract_keys, contract_space
 from .render import DEFAULT_WIDTH
 
@@ -212,11 +213,11 @@ class VecEnv(_Base):
             raise ValueError("an SB3 VecEnv has one learner car per env "
                              "(paddock.pettingzoo gives several cars to their own agents)")
         self.keys = keys
-        self.render_width = int(render_width)
+        self.render_width = wire.whole("render_width", render_width)
         self._render_mode = render_mode
         self._owned = _Owned(endpoint, timeout, threads)
         try:
-            self.session = EnvSession(self._owned.conn, int(num_envs), **kwargs)
+            self.session = EnvSession(self._owned.conn, num_envs, **kwargs)
         except BaseException:
             self._owned.close()
             raise

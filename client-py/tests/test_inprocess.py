@@ -121,6 +121,14 @@ def test_whole_number_fields_name_themselves_and_the_session_goes_on() -> None:
         assert said in str(e.value), (kw, str(e.value))
     with pytest.raises(ValueError, match=r"num_envs = -1 is out of range"):
         paddock.make_vec(-1, paddock.IN_PROCESS)
+    # the wrappers took int() of their counts first: 2.5 cars became 2
+    from paddock import pettingzoo, sb3
+    with pytest.raises(ValueError, match=r"num_agents = 2.5 is not a whole number"):
+        pettingzoo.ParallelEnv(2.5, paddock.IN_PROCESS)
+    with pytest.raises(ValueError, match=r"num_envs = 2.5 is not a whole number"):
+        sb3.VecEnv(2.5, paddock.IN_PROCESS)
+    with pytest.raises(ValueError, match=r"render_width = 640.5 is not a whole number"):
+        paddock.F110Env(endpoint=paddock.IN_PROCESS, render_width=640.5)
     with InProcess() as conn:
         s = paddock.EnvSession(conn, 3, num_beams=16)
         # indices as numpy arrays, as a vector env passes them
