@@ -273,7 +273,11 @@ impl Client {
             if left.is_zero() {
                 return Err(ClientError::Timeout(self.timeout));
             }
-            let reply = self.recv(left)?;
+            // the request's whole timeout, not what was left of it, is the one to report
+            let reply = match self.recv(left) {
+                Err(ClientError::Timeout(_)) => return Err(ClientError::Timeout(self.timeout)),
+                r => r?,
+            };
             if reply.request_id != id {
                 continue;
             }
@@ -348,4 +352,31 @@ impl Client {
 pub fn is_missing_map(e: &ClientError) -> bool {
     matches!(e, ClientError::Remote(r)
         if r.code == paddock_proto::ErrorCode::NotFound as i32 && r.field.ends_with("map.hash"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A request nobody answers reports the request's timeout, not what was left of it
+    /// when the wait began ("no reply from the broker within 9.99999952s" before).
+    #[test]
+    fn a_request_nobody_answers_reports_its_whole_timeout() {
+        // a ROUTER that takes requests and never answers
+        let ctx = zmq::Context::new();
+        let silent = ctx.socket(zmq::ROUTER).unwrap();
+        silent.set_linger(0).unwrap();
+        silent.bind("tcp://127.0.0.1:*").unwrap();
+        let endpoint = silent.get_last_endpoint().unwrap().unwrap();
+        let mut client = Client::connect(&endpoint).unwrap();
+        client.timeout = Duration::from_millis(300);
+        let e = client
+            .request(Body::StatusRequest(paddock_proto::StatusRequest {}))
+            .expect_err("nobody answers");
+        assert!(
+            matches!(e, ClientError::Timeout(t) if t == client.timeout),
+            "{e:?}"
+        );
+        assert_eq!(e.to_string(), "no reply from the broker within 300ms");
+    }
 }
