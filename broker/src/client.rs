@@ -51,6 +51,9 @@ pub enum ClientError {
     /// The request was not sent (its socket would block, or ZeroMQ refused it).
     #[error("the request could not be sent to the broker: {0}")]
     Send(zmq::Error),
+    /// The endpoint cannot be connected to (see `paddock_libzmq::check_connect_endpoint`).
+    #[error("{0}")]
+    Endpoint(String),
     /// The broker did not let this client in (its CURVE key is not allowed, or the
     /// handshake failed): reported as soon as libzmq sees it, not after the timeout.
     #[error(transparent)]
@@ -115,6 +118,7 @@ impl Client {
 
     /// Connects with CURVE security (a client key pair and the broker's public key).
     pub fn connect_with(endpoint: &str, curve: &Curve) -> Result<Self, ClientError> {
+        paddock_libzmq::check_connect_endpoint(endpoint).map_err(ClientError::Endpoint)?;
         let ctx = zmq::Context::new();
         let socket = ctx.socket(zmq::DEALER).map_err(zmq_err("socket"))?;
         curve.apply(&socket).map_err(zmq_err("curve"))?;

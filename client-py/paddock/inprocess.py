@@ -44,7 +44,7 @@ from google.protobuf.message import Message
 from . import errors
 from ._proto import paddock_pb2 as pb
 from .maps import MapBundle
-from .transport import DEFAULT_TIMEOUT, IN_PROCESS, MapsAndModels
+from .transport import DEFAULT_TIMEOUT, IN_PROCESS, MapsAndModels, check_timeout
 
 ABI_VERSION = 2
 _ENV, _PUT_MAP, _PUT_BLOB, _SHIPPED = 1, 2, 3, 4
@@ -174,8 +174,7 @@ class InProcess(MapsAndModels):
     endpoint = IN_PROCESS
 
     def __init__(self, timeout: float = DEFAULT_TIMEOUT) -> None:
-        if not timeout > 0:
-            raise ValueError(f"timeout {timeout!r} must be > 0 seconds")
+        check_timeout(timeout)
         super().__init__()
         self.timeout = float(timeout)
         _check_not_forked()

@@ -17,6 +17,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterable
+from typing import Any
 
 import zmq
 from google.protobuf.message import DecodeError, Message
@@ -234,6 +235,39 @@ class MapsAndModels:
         return name
 
 
+# The longest timeout a socket option takes: ZeroMQ's are whole milliseconds in a C int.
+MAX_TIMEOUT = (2**31 - 1) // 1000
+
+
+def check_timeout(timeout: Any) -> None:
+    """Refuses a timeout that is not a number of seconds in ``(0, MAX_TIMEOUT]``, naming it."""
+    try:
+        ok = 0 < float(timeout) <= MAX_TIMEOUT
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"timeout = {timeout!r} is out of range: must be a number of seconds "
+                         f"in (0, {MAX_TIMEOUT}]")
+
+
+def check_endpoint(endpoint: Any) -> None:
+    """Refuses an endpoint a connection cannot use, naming what is wrong: a TCP endpoint
+    needs a port in [1, 65535] (ZeroMQ takes ``tcp://host:99999`` and connects to
+    nothing, so a typo showed only as a timeout). As the Rust client checks it
+    (``paddock_libzmq::check_connect_endpoint``)."""
+    if not isinstance(endpoint, str) or "://" not in endpoint:
+        raise ValueError(f"endpoint {endpoint!r} is not a ZeroMQ endpoint like tcp://HOST:PORT")
+    transport, address = endpoint.split("://", 1)
+    if transport != "tcp":
+        return
+    host, sep, port = address.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"endpoint {endpoint!r} has no host and port (tcp://HOST:PORT)")
+    if not (port.isdigit() and 1 <= int(port) <= 65535):
+        raise ValueError(f"endpoint {endpoint!r}: port {port} is out of range: must be a whole "
+                         "number in [1, 65535]")
+
+
 class Connection(MapsAndModels):
     """A DEALER socket connected to a broker's client endpoint (not thread-safe: one
     request at a time; a lock serialises callers)."""
@@ -244,10 +278,8 @@ class Connection(MapsAndModels):
             raise ValueError(f"endpoint {endpoint!r} (paddock.IN_PROCESS) runs env sessions in "
                              "this process only; batch rollouts and jobs need a server "
                              "(endpoint=None starts a local one)")
-        if not isinstance(endpoint, str) or "://" not in endpoint:
-            raise ValueError(f"endpoint {endpoint!r} is not a ZeroMQ endpoint like tcp://HOST:PORT")
-        if not timeout > 0:
-            raise ValueError(f"timeout {timeout!r} must be > 0 seconds")
+        check_endpoint(endpoint)
+        check_timeout(timeout)
         self.endpoint = endpoint
         self.timeout = float(timeout)
         self._ctx = context or zmq.Context.instance()

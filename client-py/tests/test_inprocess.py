@@ -104,6 +104,17 @@ def test_refusals_name_the_field_and_the_session_goes_on() -> None:
     # batch rollouts and jobs need a server: said so, naming the endpoint
     with pytest.raises(ValueError, match="'in-process'.*need a server"):
         paddock.Client(paddock.IN_PROCESS)
+    # a TCP port out of range is said at once (ZeroMQ connected to nothing, and the first
+    # request waited its whole timeout), and so is a timeout a socket cannot take
+    with pytest.raises(ValueError, match=r"port 99999 is out of range: must be a whole number in \[1, 65535\]"):
+        paddock.Client("tcp://127.0.0.1:99999")
+    with pytest.raises(ValueError, match=r"has no host and port"):
+        paddock.make_vec(1, "tcp://127.0.0.1")
+    for bad in [0, 1e12, float("nan")]:
+        with pytest.raises(ValueError, match=r"timeout = .* is out of range: must be a number of seconds"):
+            paddock.Client("tcp://127.0.0.1:5555", timeout=bad)
+        with pytest.raises(ValueError, match=r"timeout = .* is out of range"):
+            paddock.make_vec(1, paddock.IN_PROCESS, timeout=bad)
 
 
 def test_whole_number_fields_name_themselves_and_the_session_goes_on() -> None:

@@ -29,6 +29,35 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
+/// Checks an endpoint a socket is to connect to, naming what is wrong: a TCP endpoint
+/// needs a port in [1, 65535] (ZeroMQ takes `tcp://host:99999` and connects to nothing,
+/// so a typo showed only as a timeout). Other transports (`ipc://`, `inproc://`) are
+/// left to ZeroMQ.
+pub fn check_connect_endpoint(endpoint: &str) -> Result<(), String> {
+    let Some((transport, address)) = endpoint.split_once("://") else {
+        return Err(format!(
+            "endpoint {endpoint:?} is not a ZeroMQ endpoint like tcp://HOST:PORT"
+        ));
+    };
+    if transport != "tcp" {
+        return Ok(());
+    }
+    let port = match address.rsplit_once(':') {
+        Some((host, port)) if !host.is_empty() => port,
+        _ => {
+            return Err(format!(
+                "endpoint {endpoint:?} has no host and port (tcp://HOST:PORT)"
+            ));
+        }
+    };
+    match port.parse::<u32>() {
+        Ok(p) if (1..=65535).contains(&p) => Ok(()),
+        _ => Err(format!(
+            "endpoint {endpoint:?}: port {port} is out of range: must be a whole number in [1, 65535]"
+        )),
+    }
+}
+
 /// Whether the linked libzmq supports CURVE (always true for this crate's build).
 pub fn has_curve() -> bool {
     zmq::has("curve") == Some(true)
@@ -216,6 +245,34 @@ fn serve(
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn connect_endpoints_are_checked() {
+        for good in [
+            "tcp://127.0.0.1:5555",
+            "tcp://broker.example:1",
+            "tcp://[::1]:65535",
+            "ipc:///tmp/paddock.sock",
+            "inproc://x",
+        ] {
+            assert_eq!(check_connect_endpoint(good), Ok(()), "{good}");
+        }
+        for (bad, said) in [
+            (
+                "tcp://127.0.0.1:99999",
+                "port 99999 is out of range: must be a whole number in [1, 65535]",
+            ),
+            ("tcp://127.0.0.1:0", "port 0 is out of range"),
+            ("tcp://127.0.0.1:x", "port x is out of range"),
+            ("tcp://127.0.0.1:-1", "port -1 is out of range"),
+            ("tcp://127.0.0.1", "no host and port"),
+            ("tcp://:5555", "no host and port"),
+            ("127.0.0.1:5555", "is not a ZeroMQ endpoint"),
+        ] {
+            let e = check_connect_endpoint(bad).unwrap_err();
+            assert!(e.contains(said) && e.contains(bad), "{bad}: {e}");
+        }
+    }
     use super::*;
 
     fn tmp(name: &str) -> PathBuf {

@@ -76,6 +76,9 @@ pub enum WorkerError {
     },
     #[error("threads = {threads}: {message}")]
     Threads { threads: usize, message: String },
+    /// The broker's endpoint cannot be connected to (a TCP port out of range, say).
+    #[error("{0}")]
+    Endpoint(String),
 }
 
 pub(crate) fn zmq_err(what: impl Into<String>) -> impl FnOnce(zmq::Error) -> WorkerError {

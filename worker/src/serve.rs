@@ -67,6 +67,7 @@ impl Worker {
     /// process connects to the broker's `inproc://` endpoint through the broker's
     /// context.
     pub fn new_in(cfg: WorkerConfig, ctx: zmq::Context) -> Result<Self, WorkerError> {
+        paddock_libzmq::check_connect_endpoint(&cfg.connect).map_err(WorkerError::Endpoint)?;
         let threads = if cfg.threads == 0 {
             std::thread::available_parallelism().map_or(1, |n| n.get())
         } else {
