@@ -58,6 +58,35 @@ pub fn check_connect_endpoint(endpoint: &str) -> Result<(), String> {
     }
 }
 
+/// Checks an endpoint a socket is to bind, naming what is wrong: a TCP endpoint's port
+/// must be `*`, or a whole number in [0, 65535] (0: any free port). libzmq takes
+/// `tcp://host:99999` and binds port 99999 - 65536 = 34463 instead. Other transports are
+/// left to ZeroMQ.
+pub fn check_bind_endpoint(endpoint: &str) -> Result<(), String> {
+    let Some((transport, address)) = endpoint.split_once("://") else {
+        return Err(format!(
+            "endpoint {endpoint:?} is not a ZeroMQ endpoint like tcp://HOST:PORT"
+        ));
+    };
+    if transport != "tcp" {
+        return Ok(());
+    }
+    let Some((_, port)) = address.rsplit_once(':').filter(|(h, _)| !h.is_empty()) else {
+        return Err(format!(
+            "endpoint {endpoint:?} has no host and port (tcp://HOST:PORT)"
+        ));
+    };
+    if port == "*" {
+        return Ok(());
+    }
+    match port.parse::<u32>() {
+        Ok(p) if p <= 65535 => Ok(()),
+        _ => Err(format!(
+            "endpoint {endpoint:?}: port {port} is out of range: must be a whole number in [0, 65535] (0 or *: any free port)"
+        )),
+    }
+}
+
 /// Whether the linked libzmq supports CURVE (always true for this crate's build).
 pub fn has_curve() -> bool {
     zmq::has("curve") == Some(true)
@@ -270,6 +299,31 @@ mod tests {
             ("127.0.0.1:5555", "is not a ZeroMQ endpoint"),
         ] {
             let e = check_connect_endpoint(bad).unwrap_err();
+            assert!(e.contains(said) && e.contains(bad), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn bind_endpoints_are_checked() {
+        for good in [
+            "tcp://127.0.0.1:5555",
+            "tcp://*:5555",
+            "tcp://0.0.0.0:0",
+            "tcp://127.0.0.1:*",
+            "ipc:///tmp/paddock.sock",
+        ] {
+            assert_eq!(check_bind_endpoint(good), Ok(()), "{good}");
+        }
+        for (bad, said) in [
+            (
+                "tcp://127.0.0.1:99999",
+                "port 99999 is out of range: must be a whole number in [0, 65535]",
+            ),
+            ("tcp://127.0.0.1:x", "port x is out of range"),
+            ("tcp://127.0.0.1", "no host and port"),
+            ("nonsense", "is not a ZeroMQ endpoint"),
+        ] {
+            let e = check_bind_endpoint(bad).unwrap_err();
             assert!(e.contains(said) && e.contains(bad), "{bad}: {e}");
         }
     }

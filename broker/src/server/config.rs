@@ -148,6 +148,10 @@ pub enum BrokerError {
         endpoint: String,
         source: zmq::Error,
     },
+    /// An endpoint to bind that libzmq would take and then bind elsewhere (a TCP port
+    /// over 65535 wraps round) or refuse without saying why.
+    #[error("{0} (the {1})")]
+    Endpoint(String, &'static str),
     #[error(transparent)]
     Store(#[from] StoreError),
     #[error("starting the back-office thread: {0}")]

@@ -154,6 +154,7 @@ fn router(
     max_message_bytes: usize,
     clients: bool,
 ) -> Result<(zmq::Socket, String), BrokerError> {
+    paddock_libzmq::check_bind_endpoint(endpoint).map_err(|e| BrokerError::Endpoint(e, what))?;
     let s = ctx
         .socket(zmq::ROUTER)
         .map_err(socket_err(what, endpoint))?;
