@@ -34,28 +34,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 /// so a typo showed only as a timeout). Other transports (`ipc://`, `inproc://`) are
 /// left to ZeroMQ.
 pub fn check_connect_endpoint(endpoint: &str) -> Result<(), String> {
-    let Some((transport, address)) = endpoint.split_once("://") else {
-        return Err(format!(
-            "endpoint {endpoint:?} is not a ZeroMQ endpoint like tcp://HOST:PORT"
-        ));
-    };
-    if transport != "tcp" {
-        return Ok(());
-    }
-    let port = match address.rsplit_once(':') {
-        Some((host, port)) if !host.is_empty() => port,
-        _ => {
-            return Err(format!(
-                "endpoint {endpoint:?} has no host and port (tcp://HOST:PORT)"
-            ));
-        }
-    };
-    match port.parse::<u32>() {
-        Ok(p) if (1..=65535).contains(&p) => Ok(()),
-        _ => Err(format!(
-            "endpoint {endpoint:?}: port {port} is out of range: must be a whole number in [1, 65535]"
-        )),
-    }
+    check_tcp_port(endpoint, 1, "")
 }
 
 /// Checks an endpoint a socket is to bind, naming what is wrong: a TCP endpoint's port
@@ -63,6 +42,12 @@ pub fn check_connect_endpoint(endpoint: &str) -> Result<(), String> {
 /// `tcp://host:99999` and binds port 99999 - 65536 = 34463 instead. Other transports are
 /// left to ZeroMQ.
 pub fn check_bind_endpoint(endpoint: &str) -> Result<(), String> {
+    check_tcp_port(endpoint, 0, " (0 or *: any free port)")
+}
+
+/// The checks of [`check_connect_endpoint`] and [`check_bind_endpoint`]: a TCP endpoint's
+/// port in `[lo, 65535]` (or `*` where `lo` is 0), `note` said after the range.
+fn check_tcp_port(endpoint: &str, lo: u32, note: &str) -> Result<(), String> {
     let Some((transport, address)) = endpoint.split_once("://") else {
         return Err(format!(
             "endpoint {endpoint:?} is not a ZeroMQ endpoint like tcp://HOST:PORT"
@@ -71,18 +56,19 @@ pub fn check_bind_endpoint(endpoint: &str) -> Result<(), String> {
     if transport != "tcp" {
         return Ok(());
     }
-    let Some((_, port)) = address.rsplit_once(':').filter(|(h, _)| !h.is_empty()) else {
+    let Some((_, port)) = address
+        .rsplit_once(':')
+        .filter(|(host, _)| !host.is_empty())
+    else {
         return Err(format!(
             "endpoint {endpoint:?} has no host and port (tcp://HOST:PORT)"
         ));
     };
-    if port == "*" {
-        return Ok(());
-    }
     match port.parse::<u32>() {
-        Ok(p) if p <= 65535 => Ok(()),
+        Ok(p) if (lo..=65535).contains(&p) => Ok(()),
+        _ if lo == 0 && port == "*" => Ok(()),
         _ => Err(format!(
-            "endpoint {endpoint:?}: port {port} is out of range: must be a whole number in [0, 65535] (0 or *: any free port)"
+            "endpoint {endpoint:?}: port {port} is out of range: must be a whole number in [{lo}, 65535]{note}"
         )),
     }
 }
@@ -274,6 +260,7 @@ fn serve(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
 
     #[test]
     fn connect_endpoints_are_checked() {
@@ -327,7 +314,6 @@ mod tests {
             assert!(e.contains(said) && e.contains(bad), "{bad}: {e}");
         }
     }
-    use super::*;
 
     fn tmp(name: &str) -> PathBuf {
         let d = std::env::temp_dir().join(format!("paddock-libzmq-{name}-{}", std::process::id()));
