@@ -207,15 +207,20 @@ struct ExportArgs {
     odom_topic: String,
 }
 
-/// The parser of `--laser-yaw`: `args::number(-MAX_YAW, MAX_YAW)`, its range said as
+/// The parser of `--laser-yaw`: as `args::number(-MAX_YAW, MAX_YAW)`, its range said as
 /// two turns (`[-2 pi, 2 pi]`) rather than in sixteen digits.
 fn laser_yaw(text: &str) -> Result<f64, String> {
     let range = "[-2 pi, 2 pi]";
-    match text.trim().parse::<f64>() {
-        Err(_) => Err(format!("{text:?} is not a number in {range}")),
-        Ok(_) => args::number(-MAX_YAW, MAX_YAW)(text)
-            .map_err(|_| format!("{text} is out of range: must be a number in {range}")),
+    let v: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number in {range}"))?;
+    if !(v.is_finite() && v.abs() <= MAX_YAW) {
+        return Err(format!(
+            "{text} is out of range: must be a number in {range}"
+        ));
     }
+    Ok(v)
 }
 
 pub fn run(args: &BridgeArgs, circuits: &Circuits) -> Result<()> {

@@ -50,21 +50,25 @@ pub struct VideoOptions {
 /// whole number of 0.01 s steps).
 const FPS_RANGE: &str = "must be a whole number that divides 100 (one frame every whole number of 0.01 s steps): 1, 2, 4, 5, 10, 20, 25, 50 or 100";
 
+/// Whether `fps` frames a second fall on whole 0.01 s steps.
+fn fps_divides(fps: u32) -> bool {
+    fps != 0 && STEPS_PER_S.is_multiple_of(fps)
+}
+
 /// The parser of `--fps`, in the wording of every numeric flag (`args`).
 fn fps(text: &str) -> Result<u32, String> {
-    let v: u32 = args::whole::<u32>(1, STEPS_PER_S.into())(text)
-        .map_err(|_| format!("{text} is out of range: {FPS_RANGE}"))?;
-    if !STEPS_PER_S.is_multiple_of(v) {
-        return Err(format!("{text} is out of range: {FPS_RANGE}"));
-    }
-    Ok(v)
+    text.trim()
+        .parse()
+        .ok()
+        .filter(|&v| fps_divides(v))
+        .ok_or_else(|| format!("{text} is out of range: {FPS_RANGE}"))
 }
 
 impl VideoOptions {
     /// The trajectory decimation that gives one sample per frame. (The flags' parsers
     /// check the same; this checks options made in code.)
     pub fn decimation(&self) -> Result<u32> {
-        if self.fps == 0 || !STEPS_PER_S.is_multiple_of(self.fps) {
+        if !fps_divides(self.fps) {
             bail!("--fps {} is out of range: {FPS_RANGE}", self.fps);
         }
         if !(paddock_render::MIN_WIDTH..=paddock_render::MAX_WIDTH).contains(&self.video_width) {
