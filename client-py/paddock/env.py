@@ -214,7 +214,8 @@ class EnvSession:
         num_agents = wire.whole("num_agents", num_agents, 1)
         num_beams, obstacles = wire.whole("num_beams", num_beams), wire.whole("obstacles", obstacles)
         laps, frame_skip = wire.whole("laps", laps), wire.whole("frame_skip", frame_skip)
-        if not 1 <= wire.whole("learners", learners, 1) <= num_agents:
+        learners = wire.whole("learners", learners, 1)
+        if learners > num_agents:
             raise ValueError(f"learners = {learners!r} must be in 1..num_agents ({num_agents}): "
                              f"the learner drives cars 0..learners, opponents the rest")
         if collision_mode not in _COLLISION:
@@ -224,7 +225,7 @@ class EnvSession:
             if k not in weights:
                 raise ValueError(f"reward key {k!r} is not one of {sorted(weights)}")
             weights[k] = float(v)
-        n_opp = int(num_agents) - int(learners)
+        n_opp = num_agents - learners
         if opponents is None:
             opponents = ["pure-pursuit"] * n_opp
         elif len(opponents) != n_opp:
@@ -242,15 +243,14 @@ class EnvSession:
                                        vehicle_yaml=vehicle_yaml))
         self.conn = conn
         msg = pb.EnvOpen(
-            map=conn.map_ref(map), num_envs=int(num_envs), seed=int(seed) % 2**64,
+            map=conn.map_ref(map), num_envs=num_envs, seed=int(seed) % 2**64,
             opponents=agents, vehicle_yaml=vehicle_yaml,
-            lidar=pb.Lidar(num_beams=int(num_beams), fov=float(fov), max_range=float(max_range),
+            lidar=pb.Lidar(num_beams=num_beams, fov=float(fov), max_range=float(max_range),
                            noise_std=float(lidar_noise), mount_offset=0.0),
-            obstacles=pb.Obstacles(count=int(obstacles), length=0.4, width=0.4, passage=1.0,
+            obstacles=pb.Obstacles(count=obstacles, length=0.4, width=0.4, passage=1.0,
                                    start_clearance=4.0),
-            laps=int(laps), time_limit=float(time_limit), collision_mode=_COLLISION[collision_mode],
-            reward=pb.RewardWeights(**weights), frame_skip=int(frame_skip),
-            learners=int(learners))
+            laps=laps, time_limit=float(time_limit), collision_mode=_COLLISION[collision_mode],
+            reward=pb.RewardWeights(**weights), frame_skip=frame_skip, learners=learners)
         header, frames = conn.env(0, pb.ENV_OPEN, msg, timeout=max(conn.timeout, 60.0))
         opened = pb.EnvOpened.FromString(frames[0].bytes)
         self.session_id = header.session_id
@@ -258,7 +258,7 @@ class EnvSession:
         self.num_agents = opened.num_agents
         # a server from before learner cars answers 0: one learner
         self.num_learners = opened.num_learners or 1
-        if self.num_learners != int(learners):
+        if self.num_learners != learners:
             raise errors.BadMessage(1, "env_opened.num_learners",
                                     f"the server opened {self.num_learners} learner cars, "
                                     f"{learners} were asked for (an older server?)")
@@ -266,7 +266,7 @@ class EnvSession:
         self.action_low = np.array(opened.action_low, dtype=np.float32)
         self.action_high = np.array(opened.action_high, dtype=np.float32)
         self.dt = opened.dt
-        self.frame_skip = int(frame_skip)
+        self.frame_skip = frame_skip
         self.max_range = float(max_range)
         # the reply's arrays, in the order of `_frame`
         n, a, b, lrn = self.num_envs, self.num_agents, self.num_beams, self.num_learners

@@ -26,10 +26,10 @@ def whole(name: str, value: Any, lo: int = 0, hi: int = U32_MAX) -> int:
     as "Value out of range: -1", naming nothing, and a fraction was cut silently."""
     try:
         v = int(value)
-        fraction = v != value
     except (TypeError, ValueError, OverflowError):
-        v, fraction = None, True
-    if v is None or (fraction and not isinstance(value, str)):
+        v = None
+    # a number must equal its whole part; a string ("12") is whole once int() took it
+    if v is None or (v != value and not isinstance(value, str)):
         raise ValueError(f"{name} = {value!r} is not a whole number in [{lo}, {hi}]")
     if not lo <= v <= hi:
         raise ValueError(f"{name} = {value!r} is out of range: must be a whole number in [{lo}, {hi}]")
