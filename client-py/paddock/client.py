@@ -186,7 +186,8 @@ class Client:
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         if p.ndim != 2:
             raise ValueError(f"params: shape {np.shape(params)}, expected (D,) or (P, D)")
-        s = [int(x) for x in np.asarray(seeds).reshape(-1)]
+        s = [wire.whole(f"seeds[{k}]", x, 0, wire.U64_MAX)
+             for k, x in enumerate(np.asarray(seeds).reshape(-1).tolist())]
         if not s:
             raise ValueError("seeds: at least one seed is needed")
         if collision_mode not in _COLLISION:
@@ -209,7 +210,7 @@ class Client:
                 crash_penalty=float(crash_penalty)).SerializeToString())
         for i in range(len(p)):
             for seed in s:
-                batch.tasks.append(pb.RolloutTaskSpec(scenario=i, seed=seed % 2**64))
+                batch.tasks.append(pb.RolloutTaskSpec(scenario=i, seed=seed))
         batch.progress = True
         # sent again if the broker restarts; a broker that does not answer raises
         # BrokerNotAnswering within about the connection's timeout
@@ -254,7 +255,7 @@ class Client:
                            generations=wire.whole("generations", generations),
                            popsize=wire.whole("popsize", popsize), seeds=wire.whole("seeds", seeds),
                            holdout=wire.whole("holdout", holdout),
-                           seed=int(seed) % 2**64, crash_penalty=float(crash_penalty),
+                           seed=wire.whole("seed", seed, 0, wire.U64_MAX), crash_penalty=float(crash_penalty),
                            vehicle_yaml=_vehicle_yaml(vehicle_params, vehicle))
         info = self.conn.request("job_submit", pb.JobSubmit(name=name or f"tune {driver}", tune=spec),
                                  "job_info")

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -48,7 +49,7 @@ from ._proto import paddock_pb2 as pb
 from .render import DEFAULT_WIDTH, RENDER_MODES, Window, frames_of
 from .inprocess import IN_PROCESS, InProcess
 from .server import LocalServer
-from .transport import Connection
+from .transport import NOT_PICKLED, Connection
 
 STATE_SIZE = 7  # x, y, theta, vx, vy, yaw_rate, steer per car
 #: The observation keys of the ONNX observation contract (docs/onnx.md) that a learner
@@ -201,6 +202,9 @@ def _frombuffer(data: bytes | memoryview, layout: _Layout, field: str) -> np.nda
 class EnvSession:
     """An env session of ``num_envs`` copies on one worker, reached through a broker."""
 
+    def __getstate__(self) -> Any:
+        raise TypeError(NOT_PICKLED)
+
     def __init__(self, conn: Connection, num_envs: int, *, map: str = "lakeside",
                  num_agents: int = 1, learners: int = 1,
                  opponents: Sequence[str | tuple[str, Sequence[float]]] | None = None,
@@ -243,7 +247,7 @@ class EnvSession:
                                        vehicle_yaml=vehicle_yaml))
         self.conn = conn
         msg = pb.EnvOpen(
-            map=conn.map_ref(map), num_envs=num_envs, seed=int(seed) % 2**64,
+            map=conn.map_ref(map), num_envs=num_envs, seed=wire.whole("seed", seed, 0, wire.U64_MAX),
             opponents=agents, vehicle_yaml=vehicle_yaml,
             lidar=pb.Lidar(num_beams=num_beams, fov=float(fov), max_range=float(max_range),
                            noise_std=float(lidar_noise), mount_offset=0.0),
@@ -297,7 +301,8 @@ class EnvSession:
 
     def reset(self, seeds: Sequence[int] | None = None, envs: Sequence[int] | None = None,
               poses: np.ndarray | None = None) -> Frame:
-        msg = pb.EnvReset(seeds=[int(s) % 2**64 for s in (seeds if seeds is not None else [])],
+        msg = pb.EnvReset(seeds=[wire.whole(f"seeds[{k}]", s, 0, wire.U64_MAX)
+                                 for k, s in enumerate(seeds if seeds is not None else [])],
                           envs=[wire.whole(f"envs[{k}]", i)
                                 for k, i in enumerate(envs if envs is not None else [])])
         if poses is not None:
@@ -356,6 +361,21 @@ class EnvSession:
             act = spaces.Box(low=np.tile(self.action_low, (lrn, 1)),
                              high=np.tile(self.action_high, (lrn, 1)), dtype=np.float32)
         return obs, act
+
+
+def reset_options(options: dict[str, Any] | None, known: tuple[str, ...]) -> dict[str, Any]:
+    """``options`` of a ``reset`` (``{}`` for None); a key this env does not take is
+    ignored with a warning naming it: gymnasium's envs ignore options they do not know,
+    but a misspelt ``poses`` went unsaid, the cars starting where the seed puts them."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise ValueError(f"options = {options!r} is not a dict (its keys: {', '.join(known)})")
+    for k in options:
+        if k not in known:
+            warnings.warn(f"options: unknown key {k!r} ignored (this env takes {', '.join(known)})",
+                          UserWarning, stacklevel=3)
+    return options
 
 
 class _Owned:
@@ -434,8 +454,11 @@ class F110Env(gym.Env):
 
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        options = reset_options(options, ("poses",))
+        if seed is not None:  # checked before anything is seeded
+            seed = wire.whole("seed", seed, 0, wire.U64_MAX)
         super().reset(seed=seed)
-        poses = None if not options or options.get("poses") is None else np.asarray(options["poses"])
+        poses = None if options.get("poses") is None else np.asarray(options["poses"])
         f = self.session.reset(seeds=[seed] if seed is not None else None, poses=poses)
         self._needs_reset = False
         if self.render_mode == "human":
@@ -517,18 +540,19 @@ class F110VectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | Sequence[int] | None = None,
               options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        options = reset_options(options, ("poses", "reset_mask"))
         if seed is None:
             seeds = None
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
+        elif np.ndim(seed) == 0:  # env i gets seed + i
+            base = wire.whole("seed", seed, 0, wire.U64_MAX - (self.num_envs - 1))
+            seeds = [base + i for i in range(self.num_envs)]
         else:
-            seeds = [int(s) for s in seed]
+            seeds = [wire.whole(f"seed[{k}]", s, 0, wire.U64_MAX) for k, s in enumerate(seed)]
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed: {len(seeds)} seeds for {self.num_envs} envs")
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(
                 seeds[0] if seeds else None)
-        options = options or {}
         envs = None
         if options.get("reset_mask") is not None:
             mask = np.asarray(options["reset_mask"], dtype=bool)

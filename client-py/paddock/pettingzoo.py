@@ -103,8 +103,11 @@ class ParallelEnv(_ParallelEnv):
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, dict[str, Any]]]:
+        # other keys are ignored unsaid: PettingZoo's API test resets with {"options": 1}
+        # and takes a warning as a failure
         poses = None if not options or options.get("poses") is None else np.asarray(options["poses"])
-        f = self.session.reset(seeds=None if seed is None else [int(seed)], poses=poses)
+        seeds = None if seed is None else [wire.whole("seed", seed, 0, wire.U64_MAX)]
+        f = self.session.reset(seeds=seeds, poses=poses)
         self._frame = f
         self.agents = list(self.possible_agents)
         return ({a: self._obs(f, a) for a in self.agents},

@@ -40,7 +40,8 @@ import numpy as np
 from gymnasium import spaces
 
 from . import wire
-from .env import CONTRACT_KEYS, EnvSession, Frame, _Owned, check_contract_keys, contract_space
+from .env import (CONTRACT_KEYS, EnvSession, Frame, _Owned, check_contract_keys, contract_space,
+                  reset_options)
 from .render import DEFAULT_WIDTH
 
 #: The observation keys a :class:`VecEnv` can give (see :data:`paddock.env.CONTRACT_KEYS`).
@@ -180,8 +181,9 @@ class _EnvView:
 
     def reset(self, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict]:
-        f = self._vec._reset_envs([self.index], None if seed is None else [seed],
-                                  (options or {}).get("poses"))
+        options = reset_options(options, ("poses",))
+        seeds = None if seed is None else [wire.whole("seed", seed, 0, wire.U64_MAX)]
+        f = self._vec._reset_envs([self.index], seeds, options.get("poses"))
         return self._vec._obs_at(f, self.index), self._vec._infos(f)[self.index]
 
     def get_wrapper_attr(self, name: str) -> Any:
@@ -256,11 +258,32 @@ class VecEnv(_Base):
         return self.session.reset(seeds=seeds, envs=envs,
                                   poses=None if poses is None else np.asarray(poses))
 
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """As SB3's: env i's next ``reset()`` gets ``seed + i`` (a random base for None).
+        A seed that is not a whole number, or that would give an env one outside
+        ``[0, 2**64 - 1]``, is refused here, naming it."""
+        if seed is not None:
+            seed = wire.whole("seed", seed, 0, wire.U64_MAX - (self.num_envs - 1))
+        return super().seed(seed)
+
+    def set_options(self, options: list[dict] | dict | None = None) -> None:
+        """As SB3's: options for the next ``reset()``, one dict for every env or one per
+        env. A key the envs do not take (they take ``poses``) is refused here, naming it."""
+        if options is not None and not isinstance(options, dict):
+            options = list(options)
+        for o in options if isinstance(options, list) else [options]:
+            reset_options(o, ("poses",))
+        super().set_options(options)
+
     def reset(self) -> dict[str, np.ndarray]:
         """Reset every env (with the seeds of :meth:`seed` and the options of
         :meth:`set_options`, if given since the last reset) and return the observations;
         ``reset_infos`` holds each env's info."""
         n = self.num_envs
+        for i in range(n):  # checked before any env resets, naming the env
+            reset_options(self._options[i], ("poses",))
+            if self._seeds[i] is not None:
+                self._seeds[i] = wire.whole(f"seeds[{i}]", self._seeds[i], 0, wire.U64_MAX)
         seeded = [i for i in range(n) if self._seeds[i] is not None]
         posed = [i for i in range(n) if self._options[i].get("poses") is not None]
         f = None
@@ -271,12 +294,12 @@ class VecEnv(_Base):
             plain = [i for i in range(n) if i not in posed]
             seeded_plain = [i for i in plain if i in seeded]
             if seeded_plain:
-                f = self._reset_envs(seeded_plain, [int(self._seeds[i]) for i in seeded_plain])
+                f = self._reset_envs(seeded_plain, [self._seeds[i] for i in seeded_plain])
             unseeded_plain = [i for i in plain if i not in seeded]
             if unseeded_plain:
                 f = self._reset_envs(unseeded_plain, None)
             for i in posed:
-                seed = None if self._seeds[i] is None else [int(self._seeds[i])]
+                seed = None if self._seeds[i] is None else [self._seeds[i]]
                 f = self._reset_envs([i], seed, self._options[i]["poses"])
         assert f is not None
         self.reset_infos = self._infos(f)

@@ -187,6 +187,13 @@ def client_token() -> bytes:
     return token
 
 
+# why a connection or an env session refuses pickle and copy.deepcopy: it is a live
+# session on a server's worker or in this process's library, not data
+NOT_PICKLED = ("a Paddock env or client holds a live connection to its simulator (a server, or "
+               "this process's library) and cannot be pickled or copied: make a new one from "
+               "the same arguments where it is needed (for a registered env, "
+               "gymnasium.make(env.spec))")
+
 class MapsAndModels:
     """The maps and ONNX models a transport hands to env sessions, each handed over once:
     :meth:`map_ref` and :meth:`driver_name`, for a server (:class:`Connection`) and for
@@ -197,6 +204,9 @@ class MapsAndModels:
     def __init__(self) -> None:
         self._maps: dict[str, pb.MapRef] = {}
         self._models: dict[str, str] = {}
+
+    def __getstate__(self) -> Any:
+        raise TypeError(NOT_PICKLED)
 
     def _put_map(self, bundle: MapBundle) -> pb.MapRef:
         raise NotImplementedError

@@ -17,6 +17,7 @@ from . import errors
 from ._proto import paddock_pb2 as pb
 
 U32_MAX = 2**32 - 1
+U64_MAX = 2**64 - 1
 
 
 def whole(name: str, value: Any, lo: int = 0, hi: int = U32_MAX) -> int:

@@ -4,7 +4,9 @@ checker, local maps and ONNX opponents."""
 
 from __future__ import annotations
 
+import copy
 import os
+import pickle
 import shutil
 import signal
 import time
@@ -153,6 +155,69 @@ def test_whole_number_fields_name_themselves_and_the_session_goes_on() -> None:
         # the session goes on
         assert s.step(np.zeros((3, 2), np.float32)).scans.shape == (3, 1, 16)
         s.close()
+
+
+def test_seeds_are_checked_and_unknown_reset_options_named() -> None:
+    """Seeds were wrapped modulo 2**64 (two seeds, one episode) and cut to whole numbers:
+    now refused, naming them, before anything resets. A reset option an env does not take
+    (a misspelt ``poses``) was ignored unsaid: now with a warning naming it. The envs go
+    on."""
+    from paddock import pettingzoo, sb3
+    ip = paddock.IN_PROCESS
+    vec = paddock.make_vec(3, ip, num_beams=16)
+    single = gym.make("paddock/F110-v0", endpoint=ip, num_beams=16)
+    learner = sb3.VecEnv(2, ip, num_beams=16)
+    race = pettingzoo.parallel_env(num_agents=2, endpoint=ip, num_beams=16)
+    try:
+        for call, said in [
+            (lambda: vec.reset(seed=-1), r"seed = -1 is out of range: must be a whole number "
+                                         r"in \[0, 18446744073709551613\]"),
+            (lambda: vec.reset(seed=2**64 - 1), r"seed = 18446744073709551615 is out of range"),
+            (lambda: vec.reset(seed=1.5), r"seed = 1.5 is not a whole number"),
+            (lambda: vec.reset(seed=[1, 2, 3.5]), r"seed\[2\] = 3.5 is not a whole number"),
+            (lambda: vec.reset(options=[1]), r"options = \[1\] is not a dict"),
+            (lambda: single.reset(seed=2**64), r"seed = 18446744073709551616 is out of range"),
+            (lambda: single.reset(seed=-1), r"seed = -1 is out of range"),
+            (lambda: learner.seed(2**64 - 1), r"seed = 18446744073709551615 is out of range"),
+            (lambda: race.reset(seed=1.5), r"seed = 1.5 is not a whole number"),
+            (lambda: paddock.make_vec(1, ip, num_beams=16, seed=-1), r"seed = -1 is out of range"),
+        ]:
+            with pytest.raises(ValueError, match=said):
+                call()
+        # an option the env does not take is ignored with a warning naming it (by the
+        # PettingZoo env without one: its API test passes one and fails on a warning)
+        for call, key, takes in [
+            (lambda: vec.reset(options={"pose": [[0, 0, 0]] * 3}), "pose", "poses, reset_mask"),
+            (lambda: single.reset(options={"posse": [[0, 0, 0]]}), "posse", "poses"),
+            (lambda: learner.set_options({"posses": [[0, 0, 0]]}), "posses", "poses"),
+        ]:
+            with pytest.warns(UserWarning, match=rf"options: unknown key '{key}' ignored "
+                                                 rf"\(this env takes {takes}\)"):
+                call()
+        # the largest seeds are taken, as numpy integers too, and the envs go on
+        assert vec.reset(seed=np.uint64(2**64 - 3))[0]["scans"].shape == (3, 1, 16)
+        assert single.reset(seed=2**64 - 1)[0]["scans"].shape == (1, 16)
+        learner.seed(5)
+        assert learner.reset()["scans"].shape == (2, 16)
+        assert len(race.reset(seed=3)[0]) == 2
+    finally:
+        for e in (vec, single, learner, race):
+            e.close()
+
+
+def test_an_env_says_it_cannot_be_pickled_or_copied() -> None:
+    """pickle and copy.deepcopy of an env failed deep inside, naming a protobuf module."""
+    env = gym.make("paddock/F110-v0", endpoint=paddock.IN_PROCESS, num_beams=16)
+    try:
+        for f in (pickle.dumps, copy.deepcopy):
+            with pytest.raises(TypeError, match=r"cannot be pickled or copied: make a new one"):
+                f(env)
+        # its spec makes a new one, which steps
+        other = gym.make(env.spec)
+        assert other.reset(seed=1)[0]["scans"].shape == (1, 16)
+        other.close()
+    finally:
+        env.close()
 
 
 def test_a_map_directory_and_an_onnx_opponent_in_process(tmp_path: Path) -> None:

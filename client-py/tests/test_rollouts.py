@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -44,6 +46,19 @@ def test_rollout_errors_name_the_field(client: Client) -> None:
         client.rollouts("pure-pursuit", defaults, seeds=[1], num_beams=1.5)
     with pytest.raises(ValueError, match=r"popsize = -4 is out of range"):
         client.submit_tune("pure-pursuit", popsize=-4)
+    # seeds, each named: they were wrapped modulo 2**64 (-1 ran as 2**64 - 1, 2**64 as 0)
+    # and cut to whole numbers (1.5 ran as 1)
+    for seeds, said in [([1, -1], r"seeds\[1\] = -1 is out of range: must be a whole number in "
+                                  r"\[0, 18446744073709551615\]"),
+                        ([2**64], r"seeds\[0\] = 18446744073709551616 is out of range"),
+                        (np.array([1.5]), r"seeds\[0\] = 1.5 is not a whole number")]:
+        with pytest.raises(ValueError, match=said):
+            client.rollouts("pure-pursuit", defaults, seeds=seeds)
+    with pytest.raises(ValueError, match=r"seed = -1 is out of range"):
+        client.submit_tune("pure-pursuit", seed=-1)
+    # a client is a live connection: pickling one says so (it named a protobuf module)
+    with pytest.raises(TypeError, match="cannot be pickled or copied"):
+        pickle.dumps(client)
 
 
 def test_tune_job_runs_to_a_result(client: Client) -> None:
