@@ -3,7 +3,7 @@ each build's ``libpaddock_embed`` in turn, a short block of steps at a time, so 
 host whose speed drifts by a fifth within minutes slows both builds alike.
 
     python benchmarks/ab_steps.py --base BASE.so --head HEAD.so [--seconds 30]
-        [--envs 64] [--block-ms 20] [--map lakeside] [--json]
+        [--envs 64] [--block-ms 20] [--map lakeside] [--clock cpu|wall] [--json]
 
 Each build gets its own copy of the library (two different files: the loader keeps one
 copy per file) and its own vector env of the same worlds, seeds and actions (cars driving
@@ -14,7 +14,10 @@ ratio of the two builds' times per step; the report is the median of those ratio
 its 95 % confidence interval (by the ranks of a binomial, no assumption about the
 host's noise), each build's env-steps per CPU-second over all its blocks, and the share
 of pairs in which the head was the faster. Pin it to one core (``taskset -c 1``);
-``scripts/ab_rounds.sh`` builds the two libraries and does.
+``scripts/ab_rounds.sh`` builds the two libraries and does. ``--clock wall`` times the
+blocks by the clock instead, for a run on several cores (the copies on the library's
+threads, where CPU time would count their waits too); the host's other load then
+counts, so give it the cores.
 
 Where each build's worlds and arrays land in memory moves a run's ratio by up to about
 2 % (two copies of one build measured 0.999-1.020x in five runs): compare builds over
@@ -49,12 +52,15 @@ def vector_env(library: str, envs: int, kw: dict):
     return env
 
 
-def steps_of(env, actions: np.ndarray, n: int) -> float:
-    """CPU seconds of ``n`` steps."""
-    t0 = time.process_time_ns()
+CLOCKS = {"cpu": time.process_time_ns, "wall": time.perf_counter_ns}
+
+
+def steps_of(env, actions: np.ndarray, n: int, clock=time.process_time_ns) -> float:
+    """Seconds of ``n`` steps by ``clock`` (this process's CPU time by default)."""
+    t0 = clock()
     for _ in range(n):
         env.step(actions)
-    return (time.process_time_ns() - t0) / 1e9
+    return (clock() - t0) / 1e9
 
 
 def median_interval(values: list[float]) -> tuple[float, float, float]:
@@ -75,10 +81,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seconds", type=float, default=30.0, help="total measuring time (default 30)")
     ap.add_argument("--envs", type=int, default=64, help="worlds of the vector env (default 64)")
     ap.add_argument("--block-ms", type=float, default=20.0,
-                    help="CPU milliseconds of one block of steps (default 20)")
+                    help="milliseconds of one block of steps, by --clock (default 20)")
     ap.add_argument("--map", default="lakeside", help="map name, directory or YAML (default lakeside)")
     ap.add_argument("--load-first", choices=("base", "head"), default="base",
                     help="which build's library and worlds are made first (default base)")
+    ap.add_argument("--clock", choices=tuple(CLOCKS), default="cpu",
+                    help="time blocks by this process's CPU time (default; pinned to one core) "
+                         "or by the clock (wall: on several cores)")
     ap.add_argument("--json", action="store_true", help="one JSON object instead of the table")
     args = ap.parse_args(argv)
     for name in ("seconds", "block_ms"):
@@ -97,21 +106,22 @@ def main(argv: list[str] | None = None) -> dict:
     actions = np.tile(np.array([0.05, 3.0], dtype=np.float32), (args.envs, 1))
     try:
         # warm both up, and size a block from the base's speed
+        clock = CLOCKS[args.clock]
         for env in builds.values():
-            steps_of(env, actions, 20)
-        per_step = steps_of(builds["base"], actions, 20) / 20
+            steps_of(env, actions, 20, clock)
+        per_step = steps_of(builds["base"], actions, 20, clock) / 20
         block = max(1, round(args.block_ms * 1e-3 / max(per_step, 1e-9)))
-        cpu = {"base": 0.0, "head": 0.0}
+        spent = {"base": 0.0, "head": 0.0}
         count = {"base": 0, "head": 0}
         ratios = []  # head's time per step over the base's, one per pair of blocks
-        start = time.process_time()
+        start = clock()
         k = 0
-        while time.process_time() - start < args.seconds:
+        while (clock() - start) / 1e9 < args.seconds:
             order = ("base", "head") if k % 2 == 0 else ("head", "base")
             took = {}
             for b in order:
-                took[b] = steps_of(builds[b], actions, block)
-                cpu[b] += took[b]
+                took[b] = steps_of(builds[b], actions, block, clock)
+                spent[b] += took[b]
                 count[b] += block
             if took["base"] > 0:
                 ratios.append(took["head"] / took["base"])
@@ -120,11 +130,12 @@ def main(argv: list[str] | None = None) -> dict:
         for env in builds.values():
             env.close()
     med, lo, hi = median_interval(ratios)
-    rate = {b: count[b] * args.envs / cpu[b] for b in builds}
+    rate = {b: count[b] * args.envs / spent[b] for b in builds}
+    per = "cpu_s" if args.clock == "cpu" else "wall_s"
     result = {
         "envs": args.envs, "map": args.map, "block_steps": block, "pairs": len(ratios),
-        "load_first": args.load_first,
-        "env_steps_per_cpu_s": rate,
+        "load_first": args.load_first, "clock": args.clock,
+        f"env_steps_per_{per}": rate,
         "head_time_over_base_median": med, "head_time_over_base_ci95": [lo, hi],
         "head_speed_over_base": 1 / med, "head_speed_over_base_ci95": [1 / hi, 1 / lo],
         "head_faster_share": sum(r < 1 for r in ratios) / len(ratios),
@@ -134,7 +145,8 @@ def main(argv: list[str] | None = None) -> dict:
         return result
     print(f"{args.envs} envs on {args.map}, {len(ratios)} pairs of {block}-step blocks")
     print()
-    print("| build | env-steps per CPU-s | head / base (speed), median of pairs | 95 % interval | head faster in |")
+    unit = "CPU-s" if args.clock == "cpu" else "s"
+    print(f"| build | env-steps per {unit} | head / base (speed), median of pairs | 95 % interval | head faster in |")
     print("| --- | ---: | ---: | ---: | ---: |")
     print(f"| base | {rate['base']:,.0f} | | | |")
     print(f"| head | {rate['head']:,.0f} | {1 / med:.4f}x | {1 / hi:.4f}-{1 / lo:.4f}x | "

@@ -23,10 +23,10 @@ an error; the process keeps running.
 A vector env's copies step on the library's thread pool, as a worker's sessions do: one
 thread per core this process may run on (``RAYON_NUM_THREADS`` sets another count; a
 process pinned to one core steps on the calling thread alone); ``threads=`` applies to a
-local server only. That pool does not survive ``fork``: a process that forks after
-stepping an in-process env must create its children's envs with the ``spawn`` or
-``forkserver`` start method (Stable-Baselines3's ``SubprocVecEnv(start_method=...)``);
-such a child is told so when it tries, instead of hanging.
+local server only. A forked child (``multiprocessing``'s and gymnasium's
+``AsyncVectorEnv``'s default start method on Linux, which also made an env in the parent
+first to read its spaces) makes the pool again for the envs it makes itself; an env
+made before the fork stays the parent's, and the child is told so if it steps it.
 """
 
 from __future__ import annotations
@@ -91,29 +91,19 @@ def find_library() -> str:
 # the libraries loaded so far, by path: one per file (each its own copy of the simulator)
 _LIBS: dict[str, ctypes.CDLL] = {}
 _LIB_LOCK = threading.Lock()
-# The process that first stepped through the library, and whether this process is a
-# fork of it: the library's thread pool does not survive fork (its threads are gone in
-# the child, so the child's first parallel step would wait on them forever).
-_USED_BY: int | None = None
-_FORKED_FROM: int | None = None
+# This process's id, kept up to date in a forked child: a handle belongs to the process
+# that made it (in a fork the library's threads for it are gone; the library makes them
+# again for the child's own handles).
+_PID = os.getpid()
 
 
 def _after_fork() -> None:
-    global _FORKED_FROM
-    if _USED_BY is not None:
-        _FORKED_FROM = _USED_BY
+    global _PID
+    _PID = os.getpid()
 
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_after_fork)
-
-
-def _check_not_forked() -> None:
-    if _FORKED_FROM is not None:
-        raise errors.ServerStartError(
-            f"the in-process simulator was used by process {_FORKED_FROM} before it forked "
-            f"this one ({os.getpid()}); its thread pool does not survive fork: start child "
-            "processes with the 'spawn' or 'forkserver' method, or use a server")
 
 
 def _library() -> ctypes.CDLL:
@@ -177,7 +167,7 @@ class InProcess(MapsAndModels):
         check_timeout(timeout)
         super().__init__()
         self.timeout = float(timeout)
-        _check_not_forked()
+        self._pid = _PID
         self._lib = _library()
         self._lock = threading.Lock()
         # where the library writes the last reply's frames' addresses and lengths (room
@@ -192,10 +182,11 @@ class InProcess(MapsAndModels):
 
     def _call(self, kind: int, payload: bytes = b"", session: int = 0,
               op: int = 0, scans: np.ndarray | None = None) -> list[Frame]:
-        global _USED_BY
-        _check_not_forked()
-        if _USED_BY is None:
-            _USED_BY = os.getpid()
+        if self._pid != _PID:
+            raise errors.PaddockError(
+                f"this in-process simulator was made by process {self._pid} before it forked "
+                f"this one ({_PID}); its threads are not here: make the env in this process "
+                "(an env made after the fork steps as usual)")
         with self._lock:
             if not self._handle:
                 raise errors.PaddockError("the in-process simulator is closed")

@@ -56,6 +56,18 @@ def test_the_table(two_copies) -> None:
     r = run("--base", a, "--head", b, "--envs", 1, "--seconds", 1, "--block-ms", 5)
     assert r.returncode == 0, r.stderr
     assert "| head |" in r.stdout and "| base |" in r.stdout and "pairs of" in r.stdout
+    assert "env-steps per CPU-s" in r.stdout
+
+
+def test_the_wall_clock_for_several_cores(two_copies) -> None:
+    a, b = two_copies
+    r = run("--base", a, "--head", b, "--envs", 4, "--seconds", 1, "--block-ms", 5,
+            "--clock", "wall", "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["clock"] == "wall" and doc["pairs"] >= 4 and "env_steps_per_cpu_s" not in doc
+    assert all(v > 0 for v in doc["env_steps_per_wall_s"].values())
+    assert 0.5 < doc["head_speed_over_base"] < 2.0
 
 
 @pytest.mark.parametrize("args, named", [
@@ -63,6 +75,7 @@ def test_the_table(two_copies) -> None:
     (["--seconds", "nan"], "--seconds = nan"),
     (["--block-ms", "-5"], "--block-ms = -5.0"),
     (["--envs", "0"], "--envs = 0"),
+    (["--clock", "gpu"], "--clock: invalid choice: 'gpu'"),
     (["--seconds", "0.01", "--block-ms", "20"], "--seconds = 0.01"),
 ])
 def test_bad_arguments_are_refused_by_name(two_copies, args: list[str], named: str) -> None:

@@ -254,23 +254,53 @@ def test_pettingzoo_api_test_passes_in_process() -> None:
         env.close()
 
 
-def test_a_fork_after_stepping_is_told_to_spawn_instead_of_hanging() -> None:
-    env = paddock.make_vec(2, paddock.IN_PROCESS, num_beams=16)
+def _scans_of(env, steps: int) -> list[np.ndarray]:
+    """The scans of a seeded reset and ``steps`` steps straight ahead."""
+    out = [env.reset(seed=3)[0]["scans"].copy()]
+    for _ in range(steps):
+        out.append(env.step(np.tile(np.array([0.0, 2.0], dtype=np.float32), (env.num_envs, 1)))[0]["scans"].copy())
+    return out
+
+
+def test_a_forked_child_steps_its_own_envs_and_leaves_the_parents_alone(
+        tmp_path: Path, monkeypatch) -> None:
+    """A fork after stepping (the default start method of ``multiprocessing`` on Linux):
+    the child's own envs step on threads made again for it, bit for bit as in the parent;
+    the parent's env is refused there, naming why, and the child freeing it leaves the
+    parent's map cache alone. Four envs, so that with two cores the copies step on the
+    pool's threads."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # where the library's map cache goes
+    track = tmp_path / "harbour-copy"
+    shutil.copytree(ROOT / "maps" / "harbour", track)
+    env = paddock.make_vec(4, paddock.IN_PROCESS, map=str(track), num_beams=16)
+    fresh = paddock.make_vec(4, paddock.IN_PROCESS, map="lakeside", num_beams=16)
     try:
-        env.reset(seed=0)
-        env.step(np.zeros((2, 2), dtype=np.float32))
+        expected = _scans_of(fresh, 5)
+        _scans_of(env, 2)
+        caches = sorted(tmp_path.glob("paddock-embed-maps-*"))
+        assert len(caches) == 1
         pid = os.fork()
-        if pid == 0:  # the child: a new env, and the parent's env
+        if pid == 0:  # the child: exit code bits say what went wrong; it never returns
             code = 0
-            for attempt in (lambda: paddock.make_vec(1, paddock.IN_PROCESS, num_beams=16),
-                            lambda: env.step(np.zeros((2, 2), dtype=np.float32))):
+            try:
                 try:
-                    attempt()
-                    code |= 1
-                except errors.ServerStartError as e:
-                    code |= 0 if "'spawn'" in str(e) and "fork" in str(e) else 2
-            os._exit(code)
-        deadline = time.monotonic() + 30
+                    child = paddock.make_vec(4, paddock.IN_PROCESS, map="lakeside", num_beams=16)
+                    got = _scans_of(child, 5)
+                    code |= 0 if all(np.array_equal(a, b) for a, b in zip(got, expected)) else 1
+                    child.close()
+                except BaseException:
+                    code |= 2
+                try:
+                    env.step(np.zeros((4, 2), dtype=np.float32))
+                    code |= 4
+                except errors.PaddockError as e:
+                    code |= 0 if "before it forked" in str(e) and "in this process" in str(e) else 8
+                env.close()
+            except BaseException:
+                code |= 16
+            finally:
+                os._exit(code)
+        deadline = time.monotonic() + 60
         while True:
             done, status = os.waitpid(pid, os.WNOHANG)
             if done:
@@ -281,10 +311,38 @@ def test_a_fork_after_stepping_is_told_to_spawn_instead_of_hanging() -> None:
                 pytest.fail("the forked child hung")
             time.sleep(0.05)
         assert os.waitstatus_to_exitcode(status) == 0
-        # the parent goes on
-        env.step(np.zeros((2, 2), dtype=np.float32))
+        # the parent goes on: its env steps, its map cache is still there, and it resets
+        # to the same bits as before
+        assert all(c.is_dir() for c in caches)
+        env.step(np.zeros((4, 2), dtype=np.float32))
+        again = _scans_of(fresh, 5)
+        assert all(np.array_equal(a, b) for a, b in zip(again, expected))
     finally:
         env.close()
+        fresh.close()
+
+
+def test_gymnasium_async_vector_env_forks_in_process_envs() -> None:
+    """``gymnasium.make_vec(..., vectorization_mode="async")`` on Linux: the parent makes
+    one env to read the spaces, then forks a process per env; they step as the same envs
+    in one process do, bit for bit."""
+    kw = {"endpoint": paddock.IN_PROCESS, "num_beams": 16}
+    actions = np.tile(np.array([0.05, 2.0], dtype=np.float32), (2, 1))
+    sync = gym.make_vec("paddock/F110-v0", num_envs=2, vectorization_mode="sync", **kw)
+    forked = gym.make_vec("paddock/F110-v0", num_envs=2, vectorization_mode="async",
+                          vector_kwargs={"context": "fork"}, **kw)
+    try:
+        want = [sync.reset(seed=7)[0]["scans"]] + [sync.step(actions)[0]["scans"] for _ in range(5)]
+        # bounded waits: a child that hung would fail the test instead of stalling it
+        forked.reset_async(seed=7)
+        got = [forked.reset_wait(timeout=60)[0]["scans"]]
+        for _ in range(5):
+            forked.step_async(actions)
+            got.append(forked.step_wait(timeout=60)[0]["scans"])
+        assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    finally:
+        sync.close()
+        forked.close(terminate=True)
 
 
 def test_each_library_file_is_its_own_simulator(tmp_path: Path, monkeypatch) -> None:

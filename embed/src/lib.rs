@@ -31,8 +31,17 @@
 //! message), as a server would reply. A panic (a bug) becomes an `INTERNAL` error, never
 //! an unwind into the caller. One handle serves one caller at a time (the Python side
 //! holds a lock around each call); handles are independent of each other.
+//!
+//! A vector env's copies step on the library's own thread pool ([`process_pool`]), shared
+//! by the process's handles, not on rayon's global pool: a process that forks (Python's
+//! `multiprocessing` and gymnasium's `AsyncVectorEnv` by default on Linux) leaves the
+//! pool's threads behind, and rayon's global pool cannot be made again, so a child that
+//! stepped on it would wait for good. The library's pool is made again in a forked
+//! child by the child's first handle. A handle made before the fork stays the parent's:
+//! in the child its calls are refused and freeing it leaves the parent's map cache alone.
 
 use std::panic::AssertUnwindSafe;
+use std::sync::{Arc, Mutex, PoisonError};
 
 use paddock_proto::{BrokerStatus, EnvOp, Error, ErrorCode, MapBundle, error};
 use paddock_sim::circuit::Circuits;
@@ -49,6 +58,33 @@ pub const PUT_MAP: u32 = 2;
 pub const PUT_BLOB: u32 = 3;
 pub const SHIPPED: u32 = 4;
 
+/// The thread pool of this process's handles: made by the first handle of a process
+/// (again in a forked child, whose parent's pool has no threads there), with rayon's
+/// default count (`RAYON_NUM_THREADS`, else the cores this process may run on).
+pub fn process_pool() -> Arc<rayon::ThreadPool> {
+    static POOL: Mutex<Option<(u32, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
+    let pid = std::process::id();
+    let mut slot = POOL.lock().unwrap_or_else(PoisonError::into_inner);
+    if let Some((owner, pool)) = slot.as_ref()
+        && *owner == pid
+    {
+        return pool.clone();
+    }
+    if let Some(parents) = slot.take() {
+        // a forked child: the parent's pool's threads are not in this process; dropping
+        // the pool would only signal them, so it is left as it is
+        std::mem::forget(parents);
+    }
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .thread_name(|i| format!("paddock-embed-{i}"))
+            .build()
+            .expect("the in-process simulator could not start its threads"),
+    );
+    *slot = Some((pid, pool.clone()));
+    pool
+}
+
 /// Env sessions, their map cache, and the frames of the last reply.
 pub struct Embedded {
     sessions: Sessions,
@@ -56,6 +92,8 @@ pub struct Embedded {
     cache: Option<(MapCache, tempfile::TempDir)>,
     next_session: u64,
     out: Vec<Vec<u8>>,
+    /// The process that made the handle (a forked child's copy is not its to use).
+    pid: u32,
 }
 
 impl Default for Embedded {
@@ -82,12 +120,19 @@ impl Embedded {
         // the learner's process's `PADDOCK_SCAN_PATH`: a bad value refuses every env open,
         // naming it
         sessions.set_scan_path(paddock_worker::scan_path::scan_path_from_env());
+        sessions.set_pool(process_pool());
         Self {
             sessions,
             cache: None,
             next_session: 1,
             out: Vec::new(),
+            pid: std::process::id(),
         }
+    }
+
+    /// Whether this process is a fork of the one that made the handle.
+    pub fn forked(&self) -> bool {
+        std::process::id() != self.pid
     }
 
     /// The map cache, made in a new temporary directory on first use.
@@ -121,6 +166,18 @@ impl Embedded {
         payload: &[u8],
         scans: Option<&mut [u8]>,
     ) -> Result<Vec<Vec<u8>>, Error> {
+        if self.forked() {
+            return Err(error(
+                ErrorCode::InvalidArgument,
+                "handle",
+                format!(
+                    "this in-process simulator was made by process {} before it forked this \
+                     one ({}); its threads are not here: make the env in this process",
+                    self.pid,
+                    std::process::id()
+                ),
+            ));
+        }
         match kind {
             ENV => Ok(self.env(session, op, payload, scans)),
             PUT_MAP => {
@@ -241,6 +298,12 @@ pub unsafe extern "C" fn paddock_embed_free(h: *mut Embedded) {
     if !h.is_null() {
         // SAFETY: the caller passes a live handle from `paddock_embed_new`.
         let handle = unsafe { Box::from_raw(h) };
+        if handle.forked() {
+            // a forked child's copy of its parent's handle: dropping it would remove the
+            // parent's map cache from the disk
+            std::mem::forget(handle);
+            return;
+        }
         let _ = std::panic::catch_unwind(AssertUnwindSafe(move || drop(handle)));
     }
 }

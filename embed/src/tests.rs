@@ -309,3 +309,25 @@ fn a_map_put_by_bundle_opens_by_hash_and_goes_with_the_handle() {
     drop(h);
     assert!(!root.exists(), "the map cache goes with the handle");
 }
+
+#[test]
+fn handles_share_the_process_pool_and_a_handle_knows_its_process() {
+    let (a, b) = (Embedded::new(), Embedded::new());
+    assert!(Arc::ptr_eq(&process_pool(), &process_pool()));
+    assert!(process_pool().current_num_threads() >= 1);
+    assert!(!a.forked() && !b.forked());
+    // a handle of another process (as a forked child sees its parent's) is refused,
+    // naming why, and freeing it leaves its map cache alone
+    let mut other = Embedded::new();
+    other.cache().unwrap();
+    let dir = other.cache.as_ref().unwrap().1.path().to_path_buf();
+    other.pid = other.pid.wrapping_add(1);
+    let e = other.call(SHIPPED, 0, 0, &[], None).unwrap_err();
+    assert_eq!(e.field, "handle");
+    assert!(e.message.contains("before it forked"), "{}", e.message);
+    let h = Box::into_raw(Box::new(other));
+    // SAFETY: a live handle of this test, freed once.
+    unsafe { paddock_embed_free(h) };
+    assert!(dir.is_dir(), "the parent's map cache was removed");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

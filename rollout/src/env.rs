@@ -132,6 +132,8 @@ pub struct VecEnv {
     cars: Vec<Action>,
     active: Vec<bool>,
     packed: Vec<u8>,
+    /// The pool the copies step on (`None`: the calling thread's rayon pool).
+    pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl std::fmt::Debug for VecEnv {
@@ -156,6 +158,18 @@ impl VecEnv {
 
     /// [`VecEnv::new`] on `circuit` (which `config.map` then only names).
     pub fn with_circuit(config: EnvConfig, circuit: Arc<Circuit>) -> Result<Self, RolloutError> {
+        Self::with_circuit_in(config, circuit, None)
+    }
+
+    /// [`VecEnv::with_circuit`] whose copies step on `pool`'s threads (`None`: the rayon
+    /// pool of the calling thread, the global one outside any pool). A library loaded
+    /// into another program's process gives its own pool, which it can make again in a
+    /// forked child (the global pool's threads are gone there, for good).
+    pub fn with_circuit_in(
+        config: EnvConfig,
+        circuit: Arc<Circuit>,
+        pool: Option<Arc<rayon::ThreadPool>>,
+    ) -> Result<Self, RolloutError> {
         config.validate()?;
         let learners = config.learners;
         let mut scans = Vec::with_capacity(config.opponents.len());
@@ -207,6 +221,7 @@ impl VecEnv {
             cars,
             active,
             packed: Vec::new(),
+            pool,
         };
         let ops = vec![
             Op::Reset {
@@ -506,7 +521,7 @@ impl VecEnv {
             active: &mut self.active,
             scans,
         };
-        run.apply(&self.config, self.max_steps)
+        run.apply(&self.config, self.max_steps, self.pool.as_deref())
     }
 
     fn refresh(&mut self) {

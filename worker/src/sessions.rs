@@ -67,6 +67,8 @@ pub struct Sessions {
     /// The scan path of the sessions' worlds (`None`: the widest), or why the setting
     /// was refused (every open is then refused, naming it).
     scan_path: Option<Result<ScanPath, ScanPathVarError>>,
+    /// The pool the sessions' copies step on (`None`: the calling thread's rayon pool).
+    pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 /// Where the map of an open request is: a folder of the map cache, or a local map
@@ -100,6 +102,13 @@ fn decode<M: Message + Default>(payload: &[u8], what: &str) -> Result<M, Error> 
 impl Sessions {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// Step the copies of sessions opened from now on on `pool`'s threads instead of the
+    /// calling thread's rayon pool (the in-process library's own pool, made again in a
+    /// forked child).
+    pub fn set_pool(&mut self, pool: Arc<rayon::ThreadPool>) {
+        self.pool = Some(pool);
     }
 
     /// Look maps up by hash in `cache` (the worker's map cache).
@@ -252,12 +261,13 @@ impl Sessions {
             .map_err(|e| with_prefix(e, "env_open"))?;
         let learners = config.learners;
         let circuits = &self.circuits;
+        let pool = self.pool.clone();
         let mut env = guarded(|| {
             let circuit = match at {
                 MapAt::Cached(dir) => circuits.load(&dir)?,
                 MapAt::Local(c) => c,
             };
-            VecEnv::with_circuit(config, circuit)
+            VecEnv::with_circuit_in(config, circuit, pool)
         })
         .and_then(|r| r.map_err(|e| paddock_wire::env::env_error(&e, learners)))
         .map_err(|e| with_prefix(e, "env_open"))?;

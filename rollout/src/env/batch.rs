@@ -35,12 +35,17 @@ pub(super) struct Run<'a> {
 }
 
 impl<'a> Run<'a> {
-    /// Runs the ops, on several threads when rayon has them; the first error of any copy
-    /// (the others still run).
-    pub(super) fn apply(self, config: &EnvConfig, max_steps: u64) -> Result<(), RolloutError> {
+    /// Runs the ops, on several threads when the pool has them (`pool`, else the calling
+    /// thread's rayon pool); the first error of any copy (the others still run).
+    pub(super) fn apply(
+        self,
+        config: &EnvConfig,
+        max_steps: u64,
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), RolloutError> {
         // one thread (a worker pinned to one core): the calling thread steps them all,
         // with no hand-over to the pool and back
-        let threads = rayon::current_num_threads();
+        let threads = pool.map_or_else(rayon::current_num_threads, |p| p.current_num_threads());
         let runs = (threads * RUNS_PER_THREAD).min(self.slots.len());
         if threads <= 1 || runs <= 1 {
             return self.run(config, max_steps);
@@ -58,10 +63,16 @@ impl<'a> Run<'a> {
             parts.push(head);
             rest = tail;
         }
-        let results: Vec<Result<(), RolloutError>> = parts
-            .into_par_iter()
-            .map(|r| r.run(config, max_steps))
-            .collect();
+        let step = move || -> Vec<Result<(), RolloutError>> {
+            parts
+                .into_par_iter()
+                .map(|r| r.run(config, max_steps))
+                .collect()
+        };
+        let results = match pool {
+            Some(p) => p.install(step),
+            None => step(),
+        };
         results.into_iter().collect()
     }
 

@@ -76,6 +76,40 @@ fn copies_are_independent_of_batching() {
 }
 
 #[test]
+fn a_given_pool_of_any_size_steps_the_same_bits() {
+    // the copies cut into runs on a pool of 1 or 3 threads (a library's own pool), as on
+    // the caller's rayon pool: the same frames, step by step, resets included
+    let circuits = paddock_sim::circuit::Circuits::new();
+    let circuit = circuits.get("lakeside").unwrap();
+    let pool = |n| {
+        Some(std::sync::Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap(),
+        ))
+    };
+    let mut envs: Vec<VecEnv> = [None, pool(1), pool(3)]
+        .into_iter()
+        .map(|p| VecEnv::with_circuit_in(cfg(9), circuit.clone(), p).unwrap())
+        .collect();
+    for k in 0..30 {
+        let frames: Vec<EnvFrame> = envs
+            .iter_mut()
+            .map(|e| {
+                if k == 12 {
+                    e.reset(&[2, 7], &[4, 5], None).unwrap().clone()
+                } else {
+                    e.step(&slow(9), &[]).unwrap().clone()
+                }
+            })
+            .collect();
+        assert_eq!(frames[0], frames[1], "step {k}");
+        assert_eq!(frames[0], frames[2], "step {k}");
+    }
+}
+
+#[test]
 fn progress_reward_sums_to_progress_and_frame_skip_advances_time() {
     let mut c = cfg(1);
     c.frame_skip = 4;
