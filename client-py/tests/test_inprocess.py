@@ -5,6 +5,7 @@ checker, local maps and ONNX opponents."""
 from __future__ import annotations
 
 import copy
+import gc
 import os
 import pickle
 import shutil
@@ -320,6 +321,46 @@ def test_a_forked_child_steps_its_own_envs_and_leaves_the_parents_alone(
     finally:
         env.close()
         fresh.close()
+
+
+def _library_threads() -> int:
+    """This process's threads of the in-process library's pool (Linux names them; a
+    thread that ends while they are read is not one)."""
+    count = 0
+    for t in Path("/proc/self/task").iterdir():
+        try:
+            count += (t / "comm").read_text().startswith("paddock-embed-")
+        except OSError:  # ended meanwhile (no such file, or no such process)
+            pass
+    return count
+
+
+def _library_threads_become(ok, seconds: float = 10.0) -> int:
+    """The library's thread count once ``ok(count)`` holds (a new thread names itself
+    when it first runs, an ended one leaves soon after), or the last count read."""
+    deadline = time.monotonic() + seconds
+    while not ok(n := _library_threads()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return n
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
+def test_the_librarys_threads_end_with_its_last_env() -> None:
+    """The pool ends with the process's last in-process env, so that a process that closed
+    its envs (gymnasium's AsyncVectorEnv closes the one it read the spaces from) forks
+    without them, and an env made later makes it again."""
+    gc.collect()  # envs of earlier tests that nobody closed
+    for _ in range(2):
+        env = paddock.make_vec(2, paddock.IN_PROCESS, num_beams=16)
+        other = paddock.make_vec(1, paddock.IN_PROCESS, num_beams=16)
+        env.reset(seed=0)
+        running = _library_threads_become(lambda n: n >= 1)
+        assert running >= 1
+        env.close()
+        time.sleep(0.05)
+        assert _library_threads() == running  # the other env still holds them
+        other.close()
+        assert _library_threads_become(lambda n: n == 0) == 0
 
 
 def test_gymnasium_async_vector_env_forks_in_process_envs() -> None:

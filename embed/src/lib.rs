@@ -36,12 +36,13 @@
 //! by the process's handles, not on rayon's global pool: a process that forks (Python's
 //! `multiprocessing` and gymnasium's `AsyncVectorEnv` by default on Linux) leaves the
 //! pool's threads behind, and rayon's global pool cannot be made again, so a child that
-//! stepped on it would wait for good. The library's pool is made again in a forked
-//! child by the child's first handle. A handle made before the fork stays the parent's:
-//! in the child its calls are refused and freeing it leaves the parent's map cache alone.
+//! stepped on it would wait for good. The library's pool ends with the process's last
+//! handle and is made again by the next, in a forked child by the child's first handle.
+//! A handle made before the fork stays the parent's: in the child its calls are refused
+//! and freeing it leaves the parent's map cache alone.
 
 use std::panic::AssertUnwindSafe;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError, Weak};
 
 use paddock_proto::{BrokerStatus, EnvOp, Error, ErrorCode, MapBundle, error};
 use paddock_sim::circuit::Circuits;
@@ -58,22 +59,26 @@ pub const PUT_MAP: u32 = 2;
 pub const PUT_BLOB: u32 = 3;
 pub const SHIPPED: u32 = 4;
 
-/// The thread pool of this process's handles: made by the first handle of a process
-/// (again in a forked child, whose parent's pool has no threads there), with rayon's
-/// default count (`RAYON_NUM_THREADS`, else the cores this process may run on).
+/// The thread pool of this process's handles, with rayon's default count
+/// (`RAYON_NUM_THREADS`, else the cores this process may run on). The handles hold it: it
+/// ends with the last of them (its threads with it, so a process that closed its envs
+/// forks without them) and is made again by the next handle, in a forked child too
+/// (whose parent's pool has no threads there).
 pub fn process_pool() -> Arc<rayon::ThreadPool> {
-    static POOL: Mutex<Option<(u32, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
+    static POOL: Mutex<Option<(u32, Weak<rayon::ThreadPool>)>> = Mutex::new(None);
     let pid = std::process::id();
     let mut slot = POOL.lock().unwrap_or_else(PoisonError::into_inner);
-    if let Some((owner, pool)) = slot.as_ref()
-        && *owner == pid
-    {
-        return pool.clone();
-    }
-    if let Some(parents) = slot.take() {
-        // a forked child: the parent's pool's threads are not in this process; dropping
-        // the pool would only signal them, so it is left as it is
-        std::mem::forget(parents);
+    match slot.take() {
+        Some((owner, weak)) if owner == pid => {
+            if let Some(pool) = weak.upgrade() {
+                *slot = Some((owner, weak));
+                return pool;
+            }
+        }
+        // a forked child: the parent's pool is left as it is (its threads are not in
+        // this process; ending it would only signal them)
+        Some((_, parents)) => std::mem::forget(parents),
+        None => {}
     }
     let pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
@@ -81,7 +86,7 @@ pub fn process_pool() -> Arc<rayon::ThreadPool> {
             .build()
             .expect("the in-process simulator could not start its threads"),
     );
-    *slot = Some((pid, pool.clone()));
+    *slot = Some((pid, Arc::downgrade(&pool)));
     pool
 }
 
