@@ -5,10 +5,13 @@ folder outside the checkout: shipped map names resolve through the server (nothi
 read beside the installed package), a map given as a path is uploaded, and with the wheel
 the env starts the `paddock` binary the wheel installed, with nothing else in sight; and
 `endpoint=paddock.IN_PROCESS` loads the in-process simulator's library the wheel put
-beside the package (the plain package: the one beside $PADDOCK_BIN)."""
+beside the package (the plain package: the one beside $PADDOCK_BIN). The wheel also goes
+into fresh venvs of the oldest Python the package supports (3.10) and the newest on the
+machine (3.13), with the versions of its dependencies that Python gets."""
 
 from __future__ import annotations
 
+import glob
 import os
 import shutil
 import subprocess
@@ -16,6 +19,8 @@ import sys
 import textwrap
 from importlib.metadata import version
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,11 +63,26 @@ def run(args: list[str], **kw: object) -> subprocess.CompletedProcess[str]:
     return p
 
 
-def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The wheel scripts/wheel.sh builds (from $PADDOCK_BIN when set)."""
+    built = run(["bash", str(ROOT / "scripts" / "wheel.sh"), str(tmp_path_factory.mktemp("dist"))])
+    path = Path(built.stdout.strip().splitlines()[-1])
+    assert path.is_file() and path.name.startswith("paddock-") and "-py3-none-linux" in path.name
+    return path
+
+
+def user_env() -> dict[str, str]:
+    """This test's environment without the checkout's settings: what a user has."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PADDOCK_BIN", "PADDOCK_MAPS", "PADDOCK_EMBED_LIB", "CARGO_TARGET_DIR",
+                        "PYTHONPATH", "VIRTUAL_ENV")}
+    env["PATH"] = "/usr/bin:/bin"
+    return env
+
+
+def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path, wheel: Path) -> None:
     binary = os.environ.get("PADDOCK_BIN")
-    built = run(["bash", str(ROOT / "scripts" / "wheel.sh"), str(tmp_path / "dist")])
-    wheel = Path(built.stdout.strip().splitlines()[-1])
-    assert wheel.is_file() and wheel.name.startswith("paddock-") and "-py3-none-linux" in wheel.name
 
     venv = tmp_path / "venv"
     py = str(venv / "bin" / "python")
@@ -76,10 +96,7 @@ def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
     elsewhere.mkdir()
     script = elsewhere / "user.py"
     script.write_text(USER)
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("PADDOCK_BIN", "PADDOCK_MAPS", "PADDOCK_EMBED_LIB", "CARGO_TARGET_DIR",
-                        "PYTHONPATH", "VIRTUAL_ENV")}
-    env["PATH"] = "/usr/bin:/bin"
+    env = user_env()
     harbour = str(ROOT / "maps" / "harbour")
 
     # the package alone (the README's `pip install ./client-py`), given a binary
@@ -103,5 +120,47 @@ def test_client_and_wheel_install_and_run_from_anywhere(tmp_path: Path) -> None:
                cwd=elsewhere, env=env).stdout.strip()
     out = run([py, str(script), str(venv), harbour, str(venv / "bin" / "paddock"),
                str(Path(site) / "_native" / "libpaddock_embed.so")], cwd=elsewhere, env=env)
+    assert out.stdout.count("stepped") == 6, out.stdout
+    assert "16 envs in place" in out.stdout, out.stdout
+
+
+def interpreter(minor: str) -> str | None:
+    """A working ``python3.N`` for ``minor`` ("3.N"): on PATH, or one pyenv installed."""
+    roots = [os.environ.get("PYENV_ROOT", ""), str(Path.home() / ".pyenv")]
+    found = [shutil.which(f"python{minor}")] + sorted(
+        p for r in roots if r for p in glob.glob(f"{r}/versions/{minor}.*/bin/python{minor}"))
+    for p in found:
+        if p and subprocess.run([p, "-c", "import sys; assert sys.version_info[:2] == "
+                                 f"{tuple(int(x) for x in minor.split('.'))}"],
+                                capture_output=True).returncode == 0:
+            return p
+    return None
+
+
+# The package supports Python 3.10 and later (pyproject.toml); the test run's own Python
+# is tested above. numpy left 3.10 after 2.2: that Python gets the last numpy it has.
+@pytest.mark.parametrize("minor, numpy", [("3.10", "2.2.6"), ("3.13", None)])
+def test_the_wheel_on_the_oldest_and_the_newest_python(tmp_path: Path, wheel: Path, minor: str,
+                                                      numpy: str | None) -> None:
+    py = interpreter(minor)
+    if py is None:
+        pytest.skip(f"no Python {minor} on this machine")
+    venv = tmp_path / "venv"
+    run([py, "-m", "venv", str(venv)])
+    pins = tmp_path / "constraints.txt"
+    pins.write_text("".join(f"{d}=={version(d)}\n" for d in ("pyzmq", "protobuf", "gymnasium"))
+                    + f"numpy=={numpy or version('numpy')}\n")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    vpy = str(venv / "bin" / "python")
+    run([vpy, "-m", "pip", "install", "-q", "--disable-pip-version-check", "-c", str(pins),
+         str(wheel)], cwd=elsewhere)
+    script = elsewhere / "user.py"
+    script.write_text(USER)
+    site = run([vpy, "-c", "import paddock, os; print(os.path.dirname(paddock.__file__))"],
+               cwd=elsewhere, env=user_env()).stdout.strip()
+    out = run([vpy, str(script), str(venv), str(ROOT / "maps" / "harbour"),
+               str(venv / "bin" / "paddock"), str(Path(site) / "_native" / "libpaddock_embed.so")],
+              cwd=elsewhere, env=user_env())
     assert out.stdout.count("stepped") == 6, out.stdout
     assert "16 envs in place" in out.stdout, out.stdout
