@@ -9,6 +9,7 @@ broker runs and stores; ``jobs()`` lists them; ``Job.wait()`` follows one to its
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -251,11 +252,18 @@ class Client:
         """Start a tuning job (CMA-ES over the driver's parameters) run by the broker;
         the defaults are those of ``paddock tune``. ``vehicle`` / ``vehicle_params``: the
         car to tune for (as in :meth:`rollouts`)."""
+        # the ranges of `paddock tune`: on the wire a 0 means "the default", so a 0 given
+        # here would run 60 generations (or a crash penalty of 100) unsaid
+        penalty = float(crash_penalty)
+        if not (math.isfinite(penalty) and penalty > 0):
+            raise ValueError(f"crash_penalty = {crash_penalty!r} is out of range: must be a "
+                             "positive finite number")
         spec = pb.TuneSpec(map=self.conn.map_ref(map), driver=driver,
-                           generations=wire.whole("generations", generations),
-                           popsize=wire.whole("popsize", popsize), seeds=wire.whole("seeds", seeds),
-                           holdout=wire.whole("holdout", holdout),
-                           seed=wire.whole("seed", seed, 0, wire.U64_MAX), crash_penalty=float(crash_penalty),
+                           generations=wire.whole("generations", generations, 1, 10_000),
+                           popsize=wire.whole("popsize", popsize, 2, 1_000),
+                           seeds=wire.whole("seeds", seeds, 1, 1_000),
+                           holdout=wire.whole("holdout", holdout, 1, 10_000),
+                           seed=wire.whole("seed", seed, 0, wire.U64_MAX), crash_penalty=penalty,
                            vehicle_yaml=_vehicle_yaml(vehicle_params, vehicle))
         info = self.conn.request("job_submit", pb.JobSubmit(name=name or f"tune {driver}", tune=spec),
                                  "job_info")

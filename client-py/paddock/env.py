@@ -46,7 +46,7 @@ from gymnasium.vector.utils import batch_space
 from . import errors, wire
 from .vehicle import vehicle_yaml as _vehicle_yaml
 from ._proto import paddock_pb2 as pb
-from .render import DEFAULT_WIDTH, RENDER_MODES, Window, frames_of
+from .render import DEFAULT_WIDTH, RENDER_MODES, WIDTHS, Window, frames_of
 from .inprocess import IN_PROCESS, InProcess
 from .server import LocalServer
 from .transport import NOT_PICKLED, Connection
@@ -428,7 +428,7 @@ class F110Env(gym.Env):
                  **kwargs: Any) -> None:
         _check_render_mode(render_mode, RENDER_MODES)
         self.render_mode = render_mode
-        self.render_width = wire.whole("render_width", render_width)
+        self.render_width = wire.whole("render_width", render_width, *WIDTHS)
         self._window: Window | None = None
         if render_mode == "human":
             self._window = Window(_render_fps(int(kwargs.get("frame_skip", 1))))
@@ -523,7 +523,7 @@ class F110VectorEnv(VectorEnv):
                  render_width: int = DEFAULT_WIDTH, **kwargs: Any) -> None:
         _check_render_mode(render_mode, ["rgb_array"])
         self.render_mode = render_mode
-        self.render_width = wire.whole("render_width", render_width)
+        self.render_width = wire.whole("render_width", render_width, *WIDTHS)
         self._owned = _Owned(endpoint, timeout, threads)
         try:
             self.session = EnvSession(self._owned.conn, num_envs, **kwargs)

@@ -32,7 +32,7 @@ from pettingzoo import ParallelEnv as _ParallelEnv
 
 from . import wire
 from .env import EnvSession, Frame, _Owned, check_contract_keys, contract_space, STATE_SIZE
-from .render import DEFAULT_WIDTH
+from .render import DEFAULT_WIDTH, WIDTHS
 
 
 class ParallelEnv(_ParallelEnv):
@@ -61,7 +61,7 @@ class ParallelEnv(_ParallelEnv):
                 raise ValueError(f"{k}: a ParallelEnv is one race of num_agents learner cars")
         self.keys = check_contract_keys(keys)
         self.render_mode = render_mode
-        self.render_width = wire.whole("render_width", render_width)
+        self.render_width = wire.whole("render_width", render_width, *WIDTHS)
         self._owned = _Owned(endpoint, timeout, threads)
         try:
             self.session = EnvSession(self._owned.conn, 1,

@@ -20,6 +20,8 @@ from ._proto import paddock_pb2 as pb
 
 RENDER_MODES = ["rgb_array", "human"]
 DEFAULT_WIDTH = 800  # pixels; 160..2048; the height follows the track's shape
+# the widths a server draws (EnvRender.width; 0 on the wire means DEFAULT_WIDTH)
+WIDTHS = (160, 2048)
 
 
 def frames_of(image: pb.EnvImage, rgb: memoryview | bytes, count: int) -> np.ndarray:

@@ -42,7 +42,7 @@ from gymnasium import spaces
 from . import wire
 from .env import (CONTRACT_KEYS, EnvSession, Frame, _Owned, check_contract_keys, contract_space,
                   reset_options)
-from .render import DEFAULT_WIDTH
+from .render import DEFAULT_WIDTH, WIDTHS
 
 #: The observation keys a :class:`VecEnv` can give (see :data:`paddock.env.CONTRACT_KEYS`).
 KEYS = CONTRACT_KEYS
@@ -215,7 +215,7 @@ class VecEnv(_Base):
             raise ValueError("an SB3 VecEnv has one learner car per env "
                              "(paddock.pettingzoo gives several cars to their own agents)")
         self.keys = keys
-        self.render_width = wire.whole("render_width", render_width)
+        self.render_width = wire.whole("render_width", render_width, *WIDTHS)
         self._render_mode = render_mode
         self._owned = _Owned(endpoint, timeout, threads)
         try:

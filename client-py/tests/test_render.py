@@ -94,11 +94,18 @@ def test_render_without_a_mode_warns_and_bad_settings_name_themselves(endpoint: 
         env.close()
     with pytest.raises(ValueError, match="render_mode = 'video'"):
         paddock.F110Env(endpoint, render_mode="video", **SMALL)
-    env = paddock.F110Env(endpoint, render_mode="rgb_array", render_width=9000, **SMALL)
+    # a width the server does not draw is refused when the env is made (0 went on the wire
+    # as "the default" and drew 800 pixels unsaid)
+    for width in (9000, 159, 0):
+        with pytest.raises(ValueError, match=rf"render_width = {width} is out of range: must be a "
+                                             r"whole number in \[160, 2048\]"):
+            paddock.F110Env(endpoint, render_mode="rgb_array", render_width=width, **SMALL)
+    env = paddock.F110Env(endpoint, render_mode="rgb_array", **SMALL)
     try:
         env.reset(seed=1)
+        # the server's own check, for a session asked directly
         with pytest.raises(errors.InvalidArgument) as e:
-            env.render()
+            env.session.render([0], 9000)
         assert e.value.field == "env_render.width" and "9000" in str(e.value)
     finally:
         env.close()

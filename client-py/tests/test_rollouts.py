@@ -56,6 +56,17 @@ def test_rollout_errors_name_the_field(client: Client) -> None:
             client.rollouts("pure-pursuit", defaults, seeds=seeds)
     with pytest.raises(ValueError, match=r"seed = -1 is out of range"):
         client.submit_tune("pure-pursuit", seed=-1)
+    # a tune job's counts in `paddock tune`'s ranges: a 0 went on the wire as "the
+    # default" and ran 60 generations (a crash penalty of 100) unsaid
+    for kw, said in [(dict(generations=0), r"generations = 0 is out of range: must be a whole "
+                                           r"number in \[1, 10000\]"),
+                     (dict(popsize=1), r"popsize = 1 is out of range: must be a whole number in \[2, 1000\]"),
+                     (dict(seeds=0), r"seeds = 0 is out of range"),
+                     (dict(holdout=10_001), r"holdout = 10001 is out of range"),
+                     (dict(crash_penalty=0), r"crash_penalty = 0 is out of range: must be a positive"),
+                     (dict(crash_penalty=float("nan")), r"crash_penalty = nan is out of range")]:
+        with pytest.raises(ValueError, match=said):
+            client.submit_tune("pure-pursuit", **kw)
     # a client is a live connection: pickling one says so (it named a protobuf module)
     with pytest.raises(TypeError, match="cannot be pickled or copied"):
         pickle.dumps(client)
