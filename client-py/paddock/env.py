@@ -48,7 +48,7 @@ from .vehicle import vehicle_yaml as _vehicle_yaml
 from ._proto import paddock_pb2 as pb
 from .render import DEFAULT_WIDTH, RENDER_MODES, WIDTHS, Window, frames_of
 from .inprocess import IN_PROCESS, InProcess
-from .server import LocalServer
+from .server import LocalServer, hold_shared, release_shared
 from .transport import NOT_PICKLED, Connection
 
 STATE_SIZE = 7  # x, y, theta, vx, vy, yaw_rate, steer per car
@@ -379,7 +379,9 @@ def reset_options(options: dict[str, Any] | None, known: tuple[str, ...]) -> dic
 
 
 class _Owned:
-    """The connection (and local server) an env opened for itself."""
+    """The connection an env opened for itself, and with ``endpoint=None`` its hold on
+    this process's shared local server (:func:`paddock.server.hold_shared`: envs made
+    with the same ``threads`` share one, stopped when the last of them closes)."""
 
     def __init__(self, endpoint: str | None, timeout: float, threads: int) -> None:
         self.server: LocalServer | None = None
@@ -387,13 +389,20 @@ class _Owned:
         if endpoint == IN_PROCESS:
             self.conn = InProcess(timeout=timeout)
             return
-        self.server = LocalServer(threads=threads).start() if endpoint is None else None
-        self.conn = Connection(self.server.endpoint if self.server else endpoint, timeout=timeout)
+        threads = wire.whole("threads", threads)
+        self.server = hold_shared(threads) if endpoint is None else None
+        try:
+            self.conn = Connection(self.server.endpoint if self.server else endpoint, timeout=timeout)
+        except BaseException:
+            if self.server is not None:
+                release_shared(self.server)
+            raise
 
     def close(self) -> None:
         self.conn.close()
-        if self.server is not None:
-            self.server.stop()
+        server, self.server = self.server, None
+        if server is not None:
+            release_shared(server)
 
 
 def _check_render_mode(mode: str | None, allowed: list[str]) -> None:

@@ -38,7 +38,8 @@ from .render import DEFAULT_WIDTH, WIDTHS
 class ParallelEnv(_ParallelEnv):
     """``num_agents`` learner cars racing each other (and ``opponents``) on one worker.
 
-    ``endpoint=None`` starts a local ``paddock serve`` that :meth:`close` stops;
+    ``endpoint=None`` uses this process's local ``paddock serve`` (started for the
+    first such env, stopped when the last one closes);
     ``endpoint=paddock.IN_PROCESS`` runs the simulator in this process. Other
     keyword arguments go to the env session as for ``gymnasium.make("paddock/F110-v0")``:
     ``map``, ``laps``, ``time_limit``, ``reward``, ``frame_skip``, ``num_beams``,

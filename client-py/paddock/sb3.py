@@ -197,7 +197,8 @@ class VecEnv(_Base):
     """``num_envs`` F1TENTH envs in one env session, as an SB3 ``VecEnv``.
 
     ``keys``: the observation keys (default the LIDAR scan alone), see :data:`KEYS`.
-    ``endpoint=None`` starts a local ``paddock serve`` that :meth:`close` stops;
+    ``endpoint=None`` uses this process's local ``paddock serve`` (started for the
+    first such env, stopped when the last one closes);
     ``endpoint=paddock.IN_PROCESS`` runs the simulator in this process. Other
     keyword arguments go to the session as for ``gymnasium.make("paddock/F110-v0")``
     (``map``, ``num_agents``, ``opponents``, ``num_beams``, ``time_limit``, ``reward``,

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -110,6 +111,9 @@ class LocalServer:
                  transport: str = "auto") -> None:
         # first: `__del__` stops the process, also of a server refused below
         self.process: subprocess.Popen[bytes] | None = None
+        # the process that started it: a forked child's copy of this object leaves the
+        # server alone (stopping it would stop its parent's)
+        self._owner = os.getpid()
         _check_transport(transport)
         self.transport = transport
         self.binary = binary or find_paddock()
@@ -165,8 +169,13 @@ class LocalServer:
     def stop(self) -> None:
         p = self.process
         self.process = None
-        if p is not None:
+        if p is not None and self._owner == os.getpid():
             stop_process(p)
+
+    def running(self) -> bool:
+        """Whether this process started the server and it has not exited."""
+        return (self.process is not None and self._owner == os.getpid()
+                and self.process.poll() is None)
 
     def log(self) -> str:
         """What the server wrote to stderr so far."""
@@ -181,3 +190,48 @@ class LocalServer:
 
     def __del__(self) -> None:
         self.stop()
+
+
+# The local servers of the envs made with ``endpoint=None``, one per worker thread count:
+# the first such env starts it, each holds it, the last one closed stops it. Sixteen envs
+# of a gymnasium SyncVectorEnv started sixteen servers (339 MB, 208 threads, 2.7 s).
+_SHARED: dict[int, tuple[LocalServer, int]] = {}
+_SHARED_LOCK = threading.Lock()
+
+
+def _forget_shared() -> None:
+    # a forked child: the parent's servers are not the child's to share or stop
+    global _SHARED_LOCK
+    _SHARED.clear()
+    _SHARED_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_shared)
+
+
+def hold_shared(threads: int = 0) -> LocalServer:
+    """This process's shared local server for ``threads`` worker threads (0: one per
+    core), started if there is none or it has ended; give it back with
+    :func:`release_shared`."""
+    with _SHARED_LOCK:
+        held = _SHARED.get(threads)
+        if held is not None and held[0].running():
+            _SHARED[threads] = (held[0], held[1] + 1)
+            return held[0]
+        server = LocalServer(threads=threads).start()
+        _SHARED[threads] = (server, 1)
+        return server
+
+
+def release_shared(server: LocalServer) -> None:
+    """Gives back a server of :func:`hold_shared`; the last holder stops it. (A server
+    that ended and was replaced meanwhile is stopped by its last holder too.)"""
+    with _SHARED_LOCK:
+        held = _SHARED.get(server.threads)
+        if held is not None and held[0] is server:
+            if held[1] > 1:
+                _SHARED[server.threads] = (server, held[1] - 1)
+                return
+            del _SHARED[server.threads]
+    server.stop()
