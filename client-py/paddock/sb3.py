@@ -269,7 +269,7 @@ class VecEnv(_Base):
 
     def set_options(self, options: list[dict] | dict | None = None) -> None:
         """As SB3's: options for the next ``reset()``, one dict for every env or one per
-        env. A key the envs do not take (they take ``poses``) is refused here, naming it."""
+        env. A key the envs do not take (they take ``poses``) is named in a warning here."""
         if options is not None and not isinstance(options, dict):
             options = list(options)
         for o in options if isinstance(options, list) else [options]:
@@ -282,7 +282,6 @@ class VecEnv(_Base):
         ``reset_infos`` holds each env's info."""
         n = self.num_envs
         for i in range(n):  # checked before any env resets, naming the env
-            reset_options(self._options[i], ("poses",))
             if self._seeds[i] is not None:
                 self._seeds[i] = wire.whole(f"seeds[{i}]", self._seeds[i], 0, wire.U64_MAX)
         seeded = [i for i in range(n) if self._seeds[i] is not None]

@@ -126,6 +126,7 @@ class LocalServer:
 
     def start(self) -> "LocalServer":
         last = ""
+        self._owner = os.getpid()
         for _ in range(3):  # a port taken between probing and binding: try another
             self.endpoint = local_endpoint(self.transport)
             # the server stops when this process is gone, even killed: no orphans
