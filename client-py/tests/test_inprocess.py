@@ -354,11 +354,10 @@ def test_the_librarys_threads_end_with_its_last_env() -> None:
         env = paddock.make_vec(2, paddock.IN_PROCESS, num_beams=16)
         other = paddock.make_vec(1, paddock.IN_PROCESS, num_beams=16)
         env.reset(seed=0)
-        running = _library_threads_become(lambda n: n >= 1)
-        assert running >= 1
+        assert _library_threads_become(lambda n: n >= 1) >= 1
         env.close()
         time.sleep(0.05)
-        assert _library_threads() == running  # the other env still holds them
+        assert _library_threads() >= 1  # the other env still holds them
         other.close()
         assert _library_threads_become(lambda n: n == 0) == 0
 
