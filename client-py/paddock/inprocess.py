@@ -91,21 +91,6 @@ def find_library() -> str:
 # the libraries loaded so far, by path: one per file (each its own copy of the simulator)
 _LIBS: dict[str, ctypes.CDLL] = {}
 _LIB_LOCK = threading.Lock()
-# This process's id, kept up to date in a forked child: a handle belongs to the process
-# that made it (in a fork the library's threads for it are gone; the library makes them
-# again for the child's own handles).
-_PID = os.getpid()
-
-
-def _after_fork() -> None:
-    global _PID
-    _PID = os.getpid()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork)
-
-
 def _library() -> ctypes.CDLL:
     """The library :func:`find_library` names now, loaded once per file (a session made
     after ``$PADDOCK_EMBED_LIB`` names another file runs that one), its ABI version
@@ -167,7 +152,6 @@ class InProcess(MapsAndModels):
         check_timeout(timeout)
         super().__init__()
         self.timeout = float(timeout)
-        self._pid = _PID
         self._lib = _library()
         self._lock = threading.Lock()
         # where the library writes the last reply's frames' addresses and lengths (room
@@ -182,11 +166,6 @@ class InProcess(MapsAndModels):
 
     def _call(self, kind: int, payload: bytes = b"", session: int = 0,
               op: int = 0, scans: np.ndarray | None = None) -> list[Frame]:
-        if self._pid != _PID:
-            raise errors.PaddockError(
-                f"this in-process simulator was made by process {self._pid} before it forked "
-                f"this one ({_PID}); its threads are not here: make the env in this process "
-                "(an env made after the fork steps as usual)")
         with self._lock:
             if not self._handle:
                 raise errors.PaddockError("the in-process simulator is closed")

@@ -42,7 +42,8 @@
 //! and freeing it leaves the parent's map cache alone.
 
 use std::panic::AssertUnwindSafe;
-use std::sync::{Arc, Mutex, PoisonError, Weak};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, Once, PoisonError, Weak};
 
 use paddock_proto::{BrokerStatus, EnvOp, Error, ErrorCode, MapBundle, error};
 use paddock_sim::circuit::Circuits;
@@ -59,6 +60,24 @@ pub const PUT_MAP: u32 = 2;
 pub const PUT_BLOB: u32 = 3;
 pub const SHIPPED: u32 = 4;
 
+/// This process's id without a system call per request (a handle's calls check it): read
+/// once, and again in a forked child by a fork handler.
+fn current_pid() -> u32 {
+    static PID: AtomicU32 = AtomicU32::new(0);
+    static HANDLER: Once = Once::new();
+    extern "C" fn in_child() {
+        // getpid and an atomic store: all a fork handler may do
+        PID.store(std::process::id(), Ordering::Relaxed);
+    }
+    HANDLER.call_once(|| {
+        PID.store(std::process::id(), Ordering::Relaxed);
+        // SAFETY: registers a handler that only stores this process's new id.
+        let rc = unsafe { libc::pthread_atfork(None, None, Some(in_child)) };
+        assert_eq!(rc, 0, "registering the in-process simulator's fork handler");
+    });
+    PID.load(Ordering::Relaxed)
+}
+
 /// The thread pool of this process's handles, with rayon's default count
 /// (`RAYON_NUM_THREADS`, else the cores this process may run on). The handles hold it: it
 /// ends with the last of them (its threads with it, so a process that closed its envs
@@ -66,7 +85,7 @@ pub const SHIPPED: u32 = 4;
 /// (whose parent's pool has no threads there).
 pub fn process_pool() -> Arc<rayon::ThreadPool> {
     static POOL: Mutex<Option<(u32, Weak<rayon::ThreadPool>)>> = Mutex::new(None);
-    let pid = std::process::id();
+    let pid = current_pid();
     let mut slot = POOL.lock().unwrap_or_else(PoisonError::into_inner);
     match slot.take() {
         Some((owner, weak)) if owner == pid => {
@@ -131,13 +150,13 @@ impl Embedded {
             cache: None,
             next_session: 1,
             out: Vec::new(),
-            pid: std::process::id(),
+            pid: current_pid(),
         }
     }
 
     /// Whether this process is a fork of the one that made the handle.
     pub fn forked(&self) -> bool {
-        std::process::id() != self.pid
+        current_pid() != self.pid
     }
 
     /// The map cache, made in a new temporary directory on first use.
@@ -179,7 +198,7 @@ impl Embedded {
                     "this in-process simulator was made by process {} before it forked this \
                      one ({}); its threads are not here: make the env in this process",
                     self.pid,
-                    std::process::id()
+                    current_pid()
                 ),
             ));
         }
