@@ -202,9 +202,6 @@ def _frombuffer(data: bytes | memoryview, layout: _Layout, field: str) -> np.nda
 class EnvSession:
     """An env session of ``num_envs`` copies on one worker, reached through a broker."""
 
-    def __getstate__(self) -> Any:
-        raise TypeError(NOT_PICKLED)
-
     def __init__(self, conn: Connection, num_envs: int, *, map: str = "lakeside",
                  num_agents: int = 1, learners: int = 1,
                  opponents: Sequence[str | tuple[str, Sequence[float]]] | None = None,
@@ -381,7 +378,11 @@ def reset_options(options: dict[str, Any] | None, known: tuple[str, ...]) -> dic
 class _Owned:
     """The connection an env opened for itself, and with ``endpoint=None`` its hold on
     this process's shared local server (:func:`paddock.server.hold_shared`: envs made
-    with the same ``threads`` share one, stopped when the last of them closes)."""
+    with the same ``threads`` share one, stopped when the last of them closes). What every
+    env holds its connection by, so pickling any env stops here, saying why."""
+
+    def __getstate__(self) -> Any:
+        raise TypeError(NOT_PICKLED)
 
     def __init__(self, endpoint: str | None, timeout: float, threads: int) -> None:
         self.server: LocalServer | None = None

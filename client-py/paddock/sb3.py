@@ -281,9 +281,6 @@ class VecEnv(_Base):
         :meth:`set_options`, if given since the last reset) and return the observations;
         ``reset_infos`` holds each env's info."""
         n = self.num_envs
-        for i in range(n):  # checked before any env resets, naming the env
-            if self._seeds[i] is not None:
-                self._seeds[i] = wire.whole(f"seeds[{i}]", self._seeds[i], 0, wire.U64_MAX)
         seeded = [i for i in range(n) if self._seeds[i] is not None]
         posed = [i for i in range(n) if self._options[i].get("poses") is not None]
         f = None

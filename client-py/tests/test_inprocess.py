@@ -219,6 +219,14 @@ def test_an_env_says_it_cannot_be_pickled_or_copied() -> None:
         other.close()
     finally:
         env.close()
+    # an env with its own local server (what it holds first is the server, not the session)
+    env = gym.make("paddock/F110-v0", endpoint=None, num_beams=16, threads=1)
+    try:
+        for f in (pickle.dumps, copy.deepcopy):
+            with pytest.raises(TypeError, match=r"cannot be pickled or copied: make a new one"):
+                f(env)
+    finally:
+        env.close()
 
 
 def test_a_map_directory_and_an_onnx_opponent_in_process(tmp_path: Path) -> None:
