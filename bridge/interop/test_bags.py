@@ -8,6 +8,12 @@
   cut would): export-csv reads it up to its last complete chunk and says how much it
   recovered.
 - Channels of a `paddock bridge record` MCAP carry rosbag2's `offered_qos_profiles`.
+- A real car's MCAP bag (rosbags' MCAP storage), its pose and its speed on different
+  topics: the pose from motion capture (`geometry_msgs/PoseStamped`), the speed from the
+  VESC's odometry at its own times, whose lateral speed is never set and whose yaw rate
+  is computed from the steering command. export-csv and sysid read the pose from
+  `--pose-topic` and interpolate the speed; sysid fits only the pose and the speed
+  (`--channels pose+speed`) and finds the steering gain hidden in the recording.
 """
 
 import csv
@@ -18,6 +24,8 @@ import time
 
 import pytest
 from mcap.reader import make_reader
+import json
+
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.interfaces import QosDurability, QosHistory, QosReliability
@@ -54,8 +62,11 @@ def run(paddock_bin, *args, timeout=300):
 
 
 def read_csv(path):
+    """The rows as numbers; an empty field (a channel not measured) is NaN."""
     with open(path, newline="") as f:
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+        return [
+            {k: float(v) if v else math.nan for k, v in row.items()} for row in csv.DictReader(f)
+        ]
 
 
 def write_db3_bag(rows, bag_dir):
@@ -145,6 +156,138 @@ def test_a_rosbags_db3_bag_is_read_by_export_csv_and_sysid(paddock_bin, tmp_path
     )
     assert r.returncode == 0, r.stderr
     assert (report / "report.json").is_file()
+
+
+WHEELBASE_M = 0.3302  # the default vehicle's lf + lr, as the VESC's odometry node takes it
+
+
+def write_car_mcap_bag(rows, bag_dir):
+    """A real car's bag from the rows of a reality-gap CSV: `/drive` commands and the true
+    pose from motion capture (`/mocap/pose`, PoseStamped) at the rows' times; the VESC's
+    `/odom` half a period later at each, its speed interpolated, its lateral speed 0 (never
+    set), its yaw rate the kinematic one of the steering command and its pose dead reckoned
+    from those, as vesc_to_odom publishes them."""
+    ts = humble_typestore()
+    t = ts.types
+    Time = t["builtin_interfaces/msg/Time"]
+    Header = t["std_msgs/msg/Header"]
+    Point, Quat = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"]
+    Pose, PoseStamped = t["geometry_msgs/msg/Pose"], t["geometry_msgs/msg/PoseStamped"]
+    Odom = t["nav_msgs/msg/Odometry"]
+    Drive = t["ackermann_msgs/msg/AckermannDrive"]
+    DriveStamped = t["ackermann_msgs/msg/AckermannDriveStamped"]
+    V3 = t["geometry_msgs/msg/Vector3"]
+    cov = __import__("numpy").zeros(36)
+    base = 1_700_000_000_000_000_000
+
+    def stamp(ns):
+        return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+    def pose(x, y, yaw):
+        return Pose(
+            position=Point(x=x, y=y, z=0.0),
+            orientation=Quat(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+        )
+
+    dr = [0.0, 0.0, 0.0]  # the VESC's dead reckoning
+    with Writer(bag_dir, version=8, storage_plugin=StoragePlugin.MCAP) as w:
+        drive = w.add_connection("/drive", DriveStamped.__msgtype__, typestore=ts)
+        mocap = w.add_connection("/mocap/pose", PoseStamped.__msgtype__, typestore=ts)
+        odom = w.add_connection("/odom", Odom.__msgtype__, typestore=ts)
+        for r, nxt in zip(rows, rows[1:]):
+            ns = base + round(r["t"] * 1e9)
+            cmd = DriveStamped(
+                header=Header(stamp=stamp(ns), frame_id="base_link"),
+                drive=Drive(
+                    steering_angle=r["steer_cmd"], steering_angle_velocity=0.0,
+                    speed=r["speed_cmd"], acceleration=0.0, jerk=0.0,
+                ),
+            )
+            w.write(drive, ns, ts.serialize_cdr(cmd, DriveStamped.__msgtype__))
+            p = PoseStamped(header=Header(stamp=stamp(ns), frame_id="map"),
+                            pose=pose(r["x"], r["y"], r["yaw"]))
+            w.write(mocap, ns, ts.serialize_cdr(p, PoseStamped.__msgtype__))
+            # the VESC half a period later
+            dt = nxt["t"] - r["t"]
+            ns_v = base + round((r["t"] + dt / 2) * 1e9)
+            vx = (r["vx"] + nxt["vx"]) / 2
+            wz = vx * math.tan(r["steer_cmd"]) / WHEELBASE_M
+            dr[2] += wz * dt
+            dr[0] += vx * math.cos(dr[2]) * dt
+            dr[1] += vx * math.sin(dr[2]) * dt
+            o = Odom(
+                header=Header(stamp=stamp(ns_v), frame_id="odom"),
+                child_frame_id="base_link",
+                pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose(*dr), covariance=cov),
+                twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=t["geometry_msgs/msg/Twist"](
+                        linear=V3(x=vx, y=0.0, z=0.0), angular=V3(x=0.0, y=0.0, z=wz)
+                    ),
+                    covariance=cov,
+                ),
+            )
+            w.write(odom, ns_v, ts.serialize_cdr(o, Odom.__msgtype__))
+
+
+def test_a_cars_bag_with_pose_and_speed_on_their_own_topics(paddock_bin, tmp_path):
+    synth = tmp_path / "synth.csv"
+    r = run(
+        paddock_bin, "sysid", "synth", "--out", str(synth), "--seconds", "40",
+        "--effect", "steering_gain:gain=0.85",
+    )
+    assert r.returncode == 0, r.stderr
+    rows = read_csv(synth)
+    bag = tmp_path / "car_bag"
+    write_car_mcap_bag(rows, bag)
+    assert list(bag.glob("*.mcap")), list(bag.iterdir())
+
+    out = tmp_path / "export.csv"
+    r = run(
+        paddock_bin, "bridge", "export-csv", str(bag), "--out", str(out),
+        "--pose-topic", "/mocap/pose",
+    )
+    assert r.returncode == 0, r.stderr
+    assert "vy exactly 0 in every /odom message" in r.stderr, r.stderr
+    with open(out, newline="") as f:
+        got = list(csv.DictReader(f))
+    # a row per pose; the last pose has no VESC message after it
+    assert len(got) == len(rows) - 1, (len(got), len(rows))
+    # the VESC's messages as written: (log time in ns from the first row, speed)
+    vesc = [
+        (round((r["t"] + (n["t"] - r["t"]) / 2) * 1e9), (r["vx"] + n["vx"]) / 2)
+        for r, n in zip(rows, rows[1:])
+    ]
+    # the first pose comes before the first VESC message: no speed there
+    assert got[0]["vx"] == "" and got[0]["vy"] == ""
+    errs = []
+    for i, (a, b) in enumerate(zip(got, rows)):
+        assert float(a["x"]) == pytest.approx(b["x"], abs=1e-9)
+        assert a["vy"] == ""
+        if i == 0:
+            continue
+        # the speed between the VESC messages around the pose, in log time
+        (t0, v0), (t1, v1) = vesc[i - 1], vesc[i]
+        t = round(b["t"] * 1e9)
+        assert t0 < t < t1
+        assert float(a["vx"]) == pytest.approx(v0 + (t - t0) / (t1 - t0) * (v1 - v0), abs=1e-9)
+        errs.append(abs(float(a["vx"]) - b["vx"]))
+    # and near the truth
+    assert sorted(errs)[len(errs) // 2] < 0.05, sorted(errs)[len(errs) // 2]
+
+    report = tmp_path / "sysid"
+    r = run(
+        paddock_bin, "sysid", "--recording", str(bag), "--out", str(report), "--no-plots",
+        "--pose-topic", "/mocap/pose", "--channels", "pose+speed",
+        "--effects", "steering_gain", "--folds", "2",
+    )
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((report / "report.json").read_text())
+    warnings = rep["recording"]["warnings"]
+    assert "measured but left out (--channels pose+speed): yaw_rate" in warnings, warnings
+    assert set(rep["recording"]["channels_missing"]) == {"vy", "yaw_rate"}, rep["recording"]
+    (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
+    assert gain["significant"], gain
+    assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain
 
 
 def test_a_killed_recorder_leaves_a_recording_export_csv_recovers(paddock, domain_id, tmp_path):

@@ -28,11 +28,13 @@ use paddock_recordings::cdr::from_cdr;
 use paddock_recordings::msg::{
     AckermannDriveStamped, LaserScan, Odometry, PlanarState, RosMessage, Stamped,
 };
+pub use paddock_recordings::track::RecordingTopics;
+use paddock_recordings::track::planar_track;
 use paddock_recordings::write::McapBag;
 use paddock_recordings::{RecordingError, Truncation, read_bag};
 
 use crate::BridgeError;
-use crate::ros::{RosConfig, RosNode, Subscription, TopicNames};
+use crate::ros::{RosConfig, RosNode, Subscription};
 
 /// Which time a recorded message is logged at.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -200,32 +202,41 @@ pub struct GapRow {
 /// The CSV header of the reality-gap layout.
 pub const GAP_CSV_HEADER: &str = "t,steer_cmd,speed_cmd,x,y,yaw,vx,vy,yaw_rate";
 
-/// Read the drive and odometry topics of a recording (see [`export_csv`]) into
-/// reality-gap rows. A truncated MCAP is read up to its last complete chunk, with a
-/// warning; [`read_gap_rows_reporting`] hands that report back.
-pub fn read_gap_rows(path: &Path, topics: &TopicNames) -> Result<Vec<GapRow>, BridgeError> {
+/// Read the drive commands and the car's track (the pose and the velocities, as
+/// [`RecordingTopics`] says; see `paddock_recordings::track`) of a recording (see
+/// [`export_csv`]) into reality-gap rows, one per pose from the first command on; a
+/// channel not measured is NaN. A truncated MCAP is read up to its last complete chunk,
+/// with a warning; [`read_gap_rows_reporting`] hands that report back.
+pub fn read_gap_rows(path: &Path, topics: &RecordingTopics) -> Result<Vec<GapRow>, BridgeError> {
     read_gap_rows_reporting(path, topics).map(|(rows, _)| rows)
 }
 
-/// [`read_gap_rows`], with what was recovered when the file was never finalised.
+/// What [`read_gap_rows_reporting`] read besides the rows.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GapReport {
+    /// What was recovered when the file was never finalised.
+    pub truncation: Option<Truncation>,
+    /// Channels not measured, poses skipped (`paddock_recordings::track::Track::notes`).
+    pub notes: Vec<String>,
+}
+
+/// [`read_gap_rows`], with what was recovered when the file was never finalised and what
+/// was not measured.
 pub fn read_gap_rows_reporting(
     path: &Path,
-    topics: &TopicNames,
-) -> Result<(Vec<GapRow>, Option<Truncation>), BridgeError> {
+    topics: &RecordingTopics,
+) -> Result<(Vec<GapRow>, GapReport), BridgeError> {
     let bad = |message: String| BridgeError::format(path, message);
-    let bag = read_bag(path, &[topics.drive.as_str(), topics.odom.as_str()]).map_err(bag_error)?;
-    for topic in [&topics.drive, &topics.odom] {
-        if let Some(info) = bag.topics.get(topic.as_str())
-            && info.encoding != "cdr"
-        {
-            return Err(bad(format!(
-                "topic {topic} has message encoding {:?}; only cdr (ROS 2) is read",
-                info.encoding
-            )));
-        }
+    let bag = read_bag(path, &topics.all()).map_err(bag_error)?;
+    if let Some(info) = bag.topics.get(topics.drive.as_str())
+        && info.encoding != "cdr"
+    {
+        return Err(bad(format!(
+            "topic {} has message encoding {:?}; only cdr (ROS 2) is read",
+            topics.drive, info.encoding
+        )));
     }
     let mut drive: Vec<(u64, f64, f64)> = Vec::new();
-    let mut odom: Vec<(u64, Odometry)> = Vec::new();
     for m in &bag.messages {
         if m.topic == topics.drive {
             let d: AckermannDriveStamped = from_cdr(&m.data)
@@ -235,73 +246,92 @@ pub fn read_gap_rows_reporting(
                 d.drive.steering_angle as f64,
                 d.drive.speed as f64,
             ));
-        } else if m.topic == topics.odom {
-            let o: Odometry = from_cdr(&m.data)
-                .map_err(|e| bad(format!("{} message {}: {e}", m.topic, odom.len())))?;
-            odom.push((m.log_time, o));
         }
     }
-    if drive.is_empty() || odom.is_empty() {
+    if drive.is_empty() {
         return Err(bad(format!(
-            "needs messages on {} and {} (topics in the recording: {})",
+            "needs messages on {} (topics in the recording: {})",
             topics.drive,
-            topics.odom,
             bag.topic_list()
         )));
     }
+    let track = planar_track(&bag, path, topics.pose_topic(), &topics.odom).map_err(bag_error)?;
     drive.sort_by_key(|d| d.0);
-    odom.sort_by_key(|o| o.0);
     let first_cmd = drive[0].0;
-    let mut rows = Vec::with_capacity(odom.len());
+    let mut rows = Vec::with_capacity(track.samples.len());
     let mut k = 0;
     let mut t0 = None;
-    for (t, o) in &odom {
-        if *t < first_cmd {
+    for s in &track.samples {
+        let t = s.log_time;
+        if t < first_cmd {
             continue;
         }
-        while k + 1 < drive.len() && drive[k + 1].0 <= *t {
+        while k + 1 < drive.len() && drive[k + 1].0 <= t {
             k += 1;
         }
-        let t0 = *t0.get_or_insert(*t);
+        let t0 = *t0.get_or_insert(t);
         rows.push(GapRow {
-            t: (*t - t0) as f64 * 1e-9,
+            t: (t - t0) as f64 * 1e-9,
             steer_cmd: drive[k].1,
             speed_cmd: drive[k].2,
-            state: o.planar_state(),
+            state: s.state,
         });
     }
     if rows.is_empty() {
         return Err(bad(format!(
-            "no {} message at or after the first {} command",
-            topics.odom, topics.drive
+            "no {} pose at or after the first {} command",
+            topics.pose_topic(),
+            topics.drive
         )));
     }
-    Ok((rows, bag.truncation))
+    Ok((
+        rows,
+        GapReport {
+            truncation: bag.truncation,
+            notes: track.notes,
+        },
+    ))
 }
 
 /// Export a recording (a `paddock bridge record` MCAP, a rosbag2 bag folder in SQLite3
 /// or MCAP storage, or a bare `.db3`) to the reality-gap CSV `out`; returns the rows
-/// written and, for an MCAP file that was never finalised, what was recovered.
+/// written and what was recovered (an MCAP file never finalised) or not measured.
 pub fn export_csv(
     recording: &Path,
     out: &Path,
-    topics: &TopicNames,
-) -> Result<(usize, Option<Truncation>), BridgeError> {
-    let (rows, truncation) = read_gap_rows_reporting(recording, topics)?;
+    topics: &RecordingTopics,
+) -> Result<(usize, GapReport), BridgeError> {
+    let (rows, report) = read_gap_rows_reporting(recording, topics)?;
     let io = |e| BridgeError::io(out, e);
     let mut w = BufWriter::new(File::create(out).map_err(io)?);
     writeln!(w, "{GAP_CSV_HEADER}").map_err(io)?;
     for r in &rows {
         let s = &r.state;
+        // a channel not measured is an empty field, as the reality-gap CSV takes it
+        let v = |x: f64| {
+            if x.is_finite() {
+                x.to_string()
+            } else {
+                String::new()
+            }
+        };
         writeln!(
             w,
             "{},{},{},{},{},{},{},{},{}",
-            r.t, r.steer_cmd, r.speed_cmd, s.x, s.y, s.yaw, s.vx, s.vy, s.yaw_rate
+            r.t,
+            r.steer_cmd,
+            r.speed_cmd,
+            s.x,
+            s.y,
+            s.yaw,
+            v(s.vx),
+            v(s.vy),
+            v(s.yaw_rate)
         )
         .map_err(io)?;
     }
     w.flush().map_err(io)?;
-    Ok((rows.len(), truncation))
+    Ok((rows.len(), report))
 }
 
 #[cfg(test)]
@@ -314,7 +344,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("paddock-bridge-bag-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("run.mcap");
-        let topics = TopicNames::default();
+        let topics = RecordingTopics::default();
         let mut bag = McapBag::new(
             BufWriter::new(File::create(&path).unwrap()),
             "run.mcap",
@@ -359,13 +389,23 @@ mod tests {
             assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&r.state.yaw));
         }
         let csv = dir.join("run.csv");
-        assert_eq!(export_csv(&path, &csv, &topics).unwrap(), (4, None));
+        // vy and the yaw rate are 0 in every message while the car moves 3 m: not set
+        let (n, report) = export_csv(&path, &csv, &topics).unwrap();
+        assert_eq!((n, report.truncation), (4, None));
+        assert_eq!(report.notes.len(), 1);
+        assert!(
+            report.notes[0].starts_with("vy, yaw_rate exactly 0 in every /odom message"),
+            "{:?}",
+            report.notes
+        );
         let text = std::fs::read_to_string(&csv).unwrap();
         assert!(text.starts_with(&format!("{GAP_CSV_HEADER}\n0,")));
+        // a channel not measured is an empty field
+        assert!(text.lines().nth(1).unwrap().ends_with(",1.5,,"), "{text}");
         // errors name the file and what is missing
-        let other = TopicNames {
+        let other = RecordingTopics {
             drive: "/other".into(),
-            ..TopicNames::default()
+            ..RecordingTopics::default()
         };
         let e = read_gap_rows(&path, &other).unwrap_err().to_string();
         assert!(e.contains("/other") && e.contains("run.mcap"), "{e}");

@@ -23,7 +23,7 @@ use paddock_sim::collision::CollisionMode;
 use paddock_sim::lidar::LidarConfig;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::world::{Starts, World, WorldConfig};
-use paddock_sysid::{AnalysisOptions, McapTopics, Recording, analyze};
+use paddock_sysid::{AnalysisOptions, Recording, RecordingTopics, analyze};
 
 mod common;
 use common::SilThread;
@@ -144,7 +144,7 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
     for topic in ["/scan", "/odom", "/drive"] {
         assert!(rec.messages[topic] > 100, "{topic}: {:?}", rec.messages);
     }
-    let rows = read_gap_rows(&bag, &paddock_bridge::ros::TopicNames::default()).unwrap();
+    let rows = read_gap_rows(&bag, &RecordingTopics::default()).unwrap();
     let span = rows.last().unwrap().t;
     assert!(
         (span - sil.sim_time).abs() < 1.0,
@@ -153,9 +153,13 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
     );
     assert!(rows.iter().any(|r| r.speed_cmd > 3.0 && r.state.vx > 3.0));
     let csv = tmp("loop.csv");
-    let (n, truncation) =
-        export_csv(&bag, &csv, &paddock_bridge::ros::TopicNames::default()).unwrap();
-    assert_eq!(truncation, None, "the recorder finalised the MCAP");
+    let (n, report) = export_csv(&bag, &csv, &RecordingTopics::default()).unwrap();
+    assert_eq!(report.truncation, None, "the recorder finalised the MCAP");
+    assert_eq!(
+        report.notes,
+        Vec::<String>::new(),
+        "the SIL car measures every channel"
+    );
     assert_eq!(n, rows.len());
     assert!(
         std::fs::read_to_string(&csv)
@@ -165,7 +169,7 @@ fn drive_node_laps_the_sil_car_like_a_rollout_and_the_recording_exports() {
 
     // the reality-gap tool reads the bag directly and finds nothing missing: the SIL car
     // is the simulator with its nominal physics
-    let recording = Recording::load(&bag, &McapTopics::default()).unwrap();
+    let recording = Recording::load(&bag, &RecordingTopics::default()).unwrap();
     let t0 = std::time::Instant::now();
     let analysis = analyze(
         &recording,

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use paddock_bridge::drive::{DriveCore, DriveOptions, DriverSpec, run_drive};
 use paddock_bridge::mount::{LaserMount, MAX_OFFSET, MAX_YAW};
-use paddock_bridge::record::{LogClock, RecordOptions, export_csv, record};
+use paddock_bridge::record::{LogClock, RecordOptions, RecordingTopics, export_csv, record};
 use paddock_bridge::ros::Frames;
 use paddock_bridge::safety::SafetyConfig;
 use paddock_bridge::sil::{Opponent, SilOptions, run_sil};
@@ -199,12 +199,18 @@ struct ExportArgs {
     /// The CSV file to write.
     #[arg(long)]
     out: PathBuf,
-    /// The recording's drive command topic.
+    /// The recording's drive command topic (ackermann_msgs/AckermannDriveStamped).
     #[arg(long, default_value = "/drive")]
     drive_topic: String,
-    /// The recording's odometry topic.
+    /// The recording's odometry topic (nav_msgs/Odometry): the velocities, and the pose
+    /// unless --pose-topic.
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
+    /// The pose's own topic, a localiser's or motion capture's (nav_msgs/Odometry,
+    /// geometry_msgs/PoseStamped or PoseWithCovarianceStamped); the velocities at each
+    /// pose are interpolated from --odom-topic. Default: --odom-topic.
+    #[arg(long)]
+    pose_topic: Option<String>,
 }
 
 /// The parser of `--laser-yaw`: as `args::number(-MAX_YAW, MAX_YAW)`, its range said as
@@ -500,14 +506,17 @@ fn rec(a: &RecordArgs) -> Result<()> {
 }
 
 fn export(a: &ExportArgs) -> Result<()> {
-    let topics = paddock_bridge::ros::TopicNames {
+    let topics = RecordingTopics {
         drive: a.drive_topic.clone(),
         odom: a.odom_topic.clone(),
-        ..Default::default()
+        pose: a.pose_topic.clone(),
     };
-    let (rows, truncation) = export_csv(&a.recording, &a.out, &topics)?;
-    if let Some(t) = truncation {
+    let (rows, report) = export_csv(&a.recording, &a.out, &topics)?;
+    if let Some(t) = report.truncation {
         eprintln!("{}: {t}", a.recording.display());
+    }
+    for note in &report.notes {
+        eprintln!("{}: {note}", a.recording.display());
     }
     outln!("wrote {} ({rows} rows)", a.out.display());
     Ok(())

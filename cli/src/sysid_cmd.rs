@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use paddock_sim::params::VehicleParams;
 use paddock_sysid::effects::EffectKind;
 use paddock_sysid::recording::CHANNELS;
-use paddock_sysid::{AnalysisOptions, McapTopics, Recording, Stage, analyze, report};
+use paddock_sysid::{AnalysisOptions, Recording, RecordingTopics, Stage, analyze, report};
 
 use crate::args::{self, outln};
 use crate::{sysid_plots, sysid_synth};
@@ -29,6 +29,20 @@ enum SysidCommand {
     Synth(sysid_synth::SynthArgs),
 }
 
+/// `--channels`: the channels to fit, and the words given.
+#[derive(Debug, Clone)]
+struct Channels {
+    keep: [bool; 6],
+    given: String,
+}
+
+fn channels(text: &str) -> Result<Channels, String> {
+    paddock_sysid::recording::parse_channels(text).map(|keep| Channels {
+        keep,
+        given: text.trim().to_string(),
+    })
+}
+
 #[derive(Args, Debug)]
 struct AnalyseArgs {
     /// A recording: CSV (t,steer_cmd,speed_cmd,x,y,yaw[,vx,vy,yaw_rate]) or MCAP (ROS 2
@@ -42,12 +56,23 @@ struct AnalyseArgs {
     /// Output directory: report.json, report.md, vehicle.yaml, plots.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// MCAP topic of the AckermannDriveStamped commands.
+    /// Bag topic of the drive commands (ackermann_msgs/AckermannDriveStamped).
     #[arg(long, default_value = "/drive")]
     drive_topic: String,
-    /// MCAP topic of the Odometry.
+    /// Bag topic of the odometry (nav_msgs/Odometry): the velocities, and the pose unless
+    /// --pose-topic.
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
+    /// Bag topic of the pose, a localiser's or motion capture's (nav_msgs/Odometry,
+    /// geometry_msgs/PoseStamped or PoseWithCovarianceStamped); the velocities at each
+    /// pose are interpolated from --odom-topic. Default: --odom-topic.
+    #[arg(long)]
+    pose_topic: Option<String>,
+    /// Channels to fit: `all` (those measured), or the pose joined by `+` with any of
+    /// speed (vx), vy, yaw_rate; `pose+speed` when the odometry's yaw rate is computed
+    /// from the steering command (the VESC's) rather than measured.
+    #[arg(long, default_value = "all", value_parser = channels)]
+    channels: Channels,
     /// Replay window [s].
     #[arg(long, default_value_t = 1.0, value_parser = args::number(0.2, 5.0))]
     window: f64,
@@ -148,9 +173,10 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
     if let Some(n) = a.threads.filter(|&n| n > 0) {
         paddock_sysid::set_threads(n)?;
     }
-    let topics = McapTopics {
+    let topics = RecordingTopics {
         drive: a.drive_topic.clone(),
         odom: a.odom_topic.clone(),
+        pose: a.pose_topic.clone(),
     };
     let mut files = Vec::new();
     for path in &a.recording {
@@ -178,7 +204,8 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
         }
         parts.push(rec);
     }
-    let rec = Recording::join(parts);
+    let mut rec = Recording::join(parts);
+    rec.keep_channels(a.channels.keep, &a.channels.given);
     for w in &rec.warnings {
         tracing::warn!("{w}");
     }

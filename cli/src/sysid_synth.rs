@@ -19,7 +19,7 @@ use paddock_sim::geometry::Pose;
 use paddock_sim::params::VehicleParams;
 use paddock_sim::rng::Rng;
 use paddock_sysid::effects::{EffectKind, parse_effect_spec};
-use paddock_sysid::recording::{McapTopics, Recording, wrap_pi};
+use paddock_sysid::recording::{Recording, RecordingTopics, wrap_pi};
 use serde_json::json;
 
 use crate::sysid_synth_runs::{self, DayPlan, Manoeuvre};
@@ -237,7 +237,7 @@ pub fn run(args: &SynthArgs, circuits: &Circuits) -> Result<()> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
     if is_mcap {
-        std::fs::write(out, rec.to_mcap(&McapTopics::default())?)
+        std::fs::write(out, rec.to_mcap(&RecordingTopics::default())?)
     } else {
         std::fs::write(out, rec.to_csv_string())
     }

@@ -11,7 +11,7 @@ use common::paddock;
 use std::path::{Path, PathBuf};
 
 use paddock_sim::params::VehicleParams;
-use paddock_sysid::recording::{McapTopics, Recording};
+use paddock_sysid::recording::{Recording, RecordingTopics};
 use paddock_sysid::replay::Replay;
 use serde_json::Value;
 
@@ -94,7 +94,8 @@ fn check_found(name: &str, report: &Value, truth: &Value, dir: &Path) {
         let fitted = effects.iter().find(|e| e["name"] == ename).unwrap();
         for (param, tv) in t["params"].as_object().unwrap() {
             if param == "region" {
-                let rec = Recording::load(&dir.join("rec.csv"), &McapTopics::default()).unwrap();
+                let rec =
+                    Recording::load(&dir.join("rec.csv"), &RecordingTopics::default()).unwrap();
                 let tb: Vec<f64> = tv
                     .as_array()
                     .unwrap()
@@ -269,7 +270,7 @@ fn fitted_vehicle_loads_and_replays_better_than_nominal() {
         lap(Some(&yaml)),
         "the fitted car drives differently"
     );
-    let rec = Recording::load(&dir.join("rec.csv"), &McapTopics::default()).unwrap();
+    let rec = Recording::load(&dir.join("rec.csv"), &RecordingTopics::default()).unwrap();
     let replay = Replay::new(&rec, 1.0);
     let nominal: f64 = replay.window_costs(&VehicleParams::default()).iter().sum();
     let with: f64 = replay.window_costs(&fitted).iter().sum();
@@ -480,7 +481,7 @@ fn synth_is_deterministic_per_seed() {
     let read = |p: &PathBuf| std::fs::read(p).unwrap();
     assert_eq!(read(&a), read(&b));
     assert_ne!(read(&a), read(&c));
-    let rec = Recording::load(&a, &McapTopics::default()).unwrap();
+    let rec = Recording::load(&a, &RecordingTopics::default()).unwrap();
     // about 40 Hz with jitter and a few dropped rows
     let rate = rec.states.len() as f64 / rec.duration();
     assert!((36.0..41.0).contains(&rate), "{rate} Hz");

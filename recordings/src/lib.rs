@@ -24,6 +24,7 @@
 
 pub mod cdr;
 pub mod msg;
+pub mod track;
 pub mod write;
 
 use std::collections::BTreeMap;

@@ -175,6 +175,20 @@ pub struct Pose {
     pub orientation: Quaternion,
 }
 
+impl Pose {
+    /// x, y and the yaw in [-pi, pi) (atan2's pi taken as -pi, so the range is half
+    /// open); the rest of a 3-D pose is not read.
+    pub fn planar(&self) -> [f64; 3] {
+        let yaw = self.orientation.yaw();
+        let yaw = if yaw >= std::f64::consts::PI {
+            yaw - std::f64::consts::TAU
+        } else {
+            yaw
+        };
+        [self.position.x, self.position.y, yaw]
+    }
+}
+
 /// A `float64[36]` covariance (row-major 6x6). Serde derives stop at 32-element arrays,
 /// so this (de)serialises by hand as a fixed-length tuple: CDR writes 36 doubles with no
 /// length prefix, as the IDL's bounded array requires.
@@ -277,18 +291,12 @@ impl Odometry {
     /// The planar state: the pose's x, y and yaw, the twist's forward, lateral and yaw
     /// rates (the rest of a 3-D odometry message is not read).
     pub fn planar_state(&self) -> PlanarState {
-        let p = &self.pose.pose;
         let tw = &self.twist.twist;
-        // atan2 gives [-pi, pi]; pi is taken as -pi, so the range is half open
-        let yaw = p.orientation.yaw();
+        let [x, y, yaw] = self.pose.pose.planar();
         PlanarState {
-            x: p.position.x,
-            y: p.position.y,
-            yaw: if yaw >= std::f64::consts::PI {
-                yaw - std::f64::consts::TAU
-            } else {
-                yaw
-            },
+            x,
+            y,
+            yaw,
             vx: tw.linear.x,
             vy: tw.linear.y,
             yaw_rate: tw.angular.z,
@@ -311,6 +319,13 @@ pub struct AckermannDrive {
 pub struct AckermannDriveStamped {
     pub header: Header,
     pub drive: AckermannDrive,
+}
+
+/// geometry_msgs/PoseStamped (a motion-capture system's pose, a localiser's inferred pose).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PoseStamped {
+    pub header: Header,
+    pub pose: Pose,
 }
 
 /// geometry_msgs/PoseWithCovarianceStamped (RViz's "2D Pose Estimate" on /initialpose).

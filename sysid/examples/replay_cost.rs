@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use paddock_sim::params::VehicleParams;
-use paddock_sysid::recording::{McapTopics, Recording};
+use paddock_sysid::recording::{Recording, RecordingTopics};
 use paddock_sysid::replay::Replay;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -13,7 +13,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let Some(rec_path) = args.first() else {
         return Err("usage: replay_cost REC [VEHICLE.yaml ...]".into());
     };
-    let rec = Recording::load(Path::new(rec_path), &McapTopics::default())?;
+    let rec = Recording::load(Path::new(rec_path), &RecordingTopics::default())?;
     let replay = Replay::new(&rec, 1.0);
     let mut vehicles: Vec<(String, VehicleParams)> = Vec::new();
     for p in &args[1..] {

@@ -41,7 +41,7 @@ pub mod uncertainty;
 
 pub use analysis::{Analysis, AnalysisOptions, Stage, analyze};
 pub use effects::EffectKind;
-pub use recording::{McapTopics, Recording};
+pub use recording::{Recording, RecordingTopics};
 
 /// Run the analyses of this process on `n` worker threads (call once, before the first).
 pub fn set_threads(n: usize) -> Result<(), SysidError> {

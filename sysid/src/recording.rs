@@ -7,6 +7,8 @@
 
 use std::path::Path;
 
+pub use paddock_recordings::track::RecordingTopics;
+
 use crate::SysidError;
 
 mod bag;
@@ -97,20 +99,36 @@ pub struct RunInfo {
     pub t_offset: f64,
 }
 
-/// Topic names of a ROS 2 bag.
-#[derive(Debug, Clone)]
-pub struct McapTopics {
-    pub drive: String,
-    pub odom: String,
-}
-
-impl Default for McapTopics {
-    fn default() -> Self {
-        Self {
-            drive: "/drive".into(),
-            odom: "/odom".into(),
+/// The channels to fit, in [`CHANNELS`] order, from `all` or a `+`-joined list of
+/// `pose` (x, y, yaw: always fitted, so it must be named), `speed` (or `vx`), `vy` and
+/// `yaw_rate`: `pose+speed` for a car whose odometry's yaw rate is computed from the
+/// steering command rather than measured.
+pub fn parse_channels(text: &str) -> Result<[bool; 6], String> {
+    let text = text.trim();
+    if text == "all" {
+        return Ok([true; 6]);
+    }
+    let mut keep = [false; 6];
+    for part in text.split('+').map(str::trim) {
+        match part {
+            "pose" => keep[..3].fill(true),
+            "speed" | "vx" => keep[3] = true,
+            "vy" => keep[4] = true,
+            "yaw_rate" => keep[5] = true,
+            other => {
+                return Err(format!(
+                    "{other:?} is not a channel; use all, or pose joined by + with any of speed (vx), \
+                     vy, yaw_rate (pose+speed)"
+                ));
+            }
         }
     }
+    if !keep[0] {
+        return Err(format!(
+            "{text:?} leaves out the pose, which is always fitted: name it (pose, pose+speed, ...)"
+        ));
+    }
+    Ok(keep)
 }
 
 /// What to record when there is not enough.
@@ -124,20 +142,20 @@ impl Recording {
     /// Load a recording: a ROS 2 bag (an `.mcap` file, one never finalised read up to its
     /// last complete chunk; a rosbag2 bag folder in SQLite3 or MCAP storage; a `.db3`
     /// file), or else a CSV file.
-    pub fn load(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
+    pub fn load(path: &Path, topics: &RecordingTopics) -> Result<Self, SysidError> {
         let rec = Self::load_inner(path, topics)?;
         rec.check()?;
         Ok(rec)
     }
 
-    fn load_inner(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
+    fn load_inner(path: &Path, topics: &RecordingTopics) -> Result<Self, SysidError> {
         let rec = if paddock_recordings::is_bag(path) {
-            let bag = paddock_recordings::read_bag(path, &[&topics.drive, &topics.odom]).map_err(
-                |e| SysidError::Format {
+            let bag = paddock_recordings::read_bag(path, &topics.all()).map_err(|e| {
+                SysidError::Format {
                     message: e.to_string(),
-                },
-            )?;
-            Self::from_bag(bag, topics)?
+                }
+            })?;
+            Self::from_bag(bag, topics, path)?
         } else {
             let bytes = std::fs::read(path).map_err(|source| SysidError::Io {
                 path: path.display().to_string(),
@@ -235,8 +253,35 @@ impl Recording {
     }
 
     /// [`Self::load`] without the length check (for recordings joined afterwards).
-    pub fn read(path: &Path, topics: &McapTopics) -> Result<Self, SysidError> {
+    pub fn read(path: &Path, topics: &RecordingTopics) -> Result<Self, SysidError> {
         Self::load_inner(path, topics)
+    }
+
+    /// Leave out the velocity channels that `keep` (in [`CHANNELS`] order, from
+    /// [`parse_channels`]) does not hold, as if they were not measured; a warning names
+    /// them and `given` (the user's words).
+    pub fn keep_channels(&mut self, keep: [bool; 6], given: &str) {
+        let dropped: Vec<&str> = (0..6)
+            .filter(|&c| !keep[c] && self.states.iter().any(|s| s.channels()[c].is_finite()))
+            .map(|c| CHANNELS[c])
+            .collect();
+        if dropped.is_empty() {
+            return;
+        }
+        for s in &mut self.states {
+            for (c, v) in [&mut s.vx, &mut s.vy, &mut s.yaw_rate]
+                .into_iter()
+                .enumerate()
+            {
+                if !keep[3 + c] {
+                    *v = f64::NAN;
+                }
+            }
+        }
+        self.warnings.push(format!(
+            "measured but left out (--channels {given}): {}",
+            dropped.join(", ")
+        ));
     }
 
     /// Channels (in [`CHANNELS`] order) with no measurement at all.
@@ -450,6 +495,48 @@ mod tests {
         let text = format!("\u{feff}{}", csv(300));
         let r = Recording::from_csv_str(&text).unwrap();
         assert_eq!(r.states.len(), 300);
+    }
+
+    #[test]
+    fn channels_are_chosen_by_name_and_left_out_as_unmeasured() {
+        assert_eq!(parse_channels("all"), Ok([true; 6]));
+        assert_eq!(
+            parse_channels(" pose + speed "),
+            Ok([true, true, true, true, false, false])
+        );
+        assert_eq!(
+            parse_channels("pose+vx+yaw_rate"),
+            Ok([true, true, true, true, false, true])
+        );
+        assert_eq!(
+            parse_channels("pose"),
+            Ok([true, true, true, false, false, false])
+        );
+        let e = parse_channels("pose+speeed").unwrap_err();
+        assert!(e.contains("\"speeed\" is not a channel"), "{e}");
+        assert!(
+            parse_channels("speed")
+                .unwrap_err()
+                .contains("leaves out the pose")
+        );
+        assert!(parse_channels("").is_err());
+
+        let mut r = Recording::from_csv_str(&csv(300)).unwrap();
+        r.keep_channels(parse_channels("pose+speed").unwrap(), "pose+speed");
+        assert_eq!(
+            r.missing_channels(),
+            [false, false, false, false, true, true]
+        );
+        assert_eq!(r.states[1].vx, 1.0);
+        assert!(r.states[1].vy.is_nan());
+        assert_eq!(
+            r.warnings.last().unwrap(),
+            "measured but left out (--channels pose+speed): vy, yaw_rate"
+        );
+        // nothing measured is left out: no warning
+        let n = r.warnings.len();
+        r.keep_channels(parse_channels("pose+speed").unwrap(), "pose+speed");
+        assert_eq!(r.warnings.len(), n);
     }
 
     /// A log with a long gap or a restart of time holds several runs; pose-and-speed

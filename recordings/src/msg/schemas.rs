@@ -2,7 +2,8 @@
 //! separated by a line of 80 `=`, as `ros2 bag` and Foxglove read them from an MCAP file.
 
 use super::{
-    AckermannDriveStamped, LaserScan, Odometry, PoseWithCovarianceStamped, RosMessage, TFMessage,
+    AckermannDriveStamped, LaserScan, Odometry, PoseStamped, PoseWithCovarianceStamped, RosMessage,
+    TFMessage,
 };
 
 macro_rules! schema {
@@ -83,6 +84,18 @@ impl RosMessage for PoseWithCovarianceStamped {
         "std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose\n",
         header_defs!(),
         pose_with_covariance_defs!()
+    );
+}
+
+impl RosMessage for PoseStamped {
+    const PACKAGE: &'static str = "geometry_msgs";
+    const TYPE: &'static str = "PoseStamped";
+    const SCHEMA: &'static str = schema!(
+        "std_msgs/Header header\ngeometry_msgs/Pose pose\n",
+        header_defs!(),
+        "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+        "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n",
+        "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
     );
 }
 

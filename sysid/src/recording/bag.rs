@@ -10,11 +10,15 @@ use paddock_recordings::msg::{
     AckermannDrive, AckermannDriveStamped, Header, Odometry, Pose, PoseWithCovariance, Quaternion,
     Time, Twist, TwistWithCovariance, Vector3,
 };
+use paddock_recordings::track::planar_track;
 use paddock_recordings::write::McapBag;
 use paddock_recordings::{Bag, RecordingError};
 
-use super::{Command, McapTopics, Recording, StateSample, clean};
+use super::{Command, Recording, RecordingTopics, StateSample, clean};
 use crate::SysidError;
+
+/// How an MCAP recording given as bytes is named in errors.
+const MCAP_NAME: &str = "the MCAP recording";
 
 /// Frame ids of the bags [`Recording::to_mcap`] writes.
 const ODOM_FRAME: &str = "map";
@@ -28,21 +32,22 @@ fn format_error(e: RecordingError) -> SysidError {
 
 impl Recording {
     /// Decode a ROS 2 bag: `ackermann_msgs/msg/AckermannDriveStamped` on the drive topic,
-    /// `nav_msgs/msg/Odometry` on the odometry topic, both CDR. Time is the log time,
-    /// from the first message of either topic.
-    pub fn from_mcap(bytes: &[u8], topics: &McapTopics) -> Result<Self, SysidError> {
-        let bag = paddock_recordings::read_mcap(
-            bytes,
-            Path::new("the MCAP recording"),
-            &[&topics.drive, &topics.odom],
-        )
-        .map_err(format_error)?;
-        Self::from_bag(bag, topics)
+    /// the pose and the velocities as [`RecordingTopics`] says (read by
+    /// `paddock_recordings::track`), all CDR. Time is the log time, from the first message
+    /// of either.
+    pub fn from_mcap(bytes: &[u8], topics: &RecordingTopics) -> Result<Self, SysidError> {
+        let bag = paddock_recordings::read_mcap(bytes, Path::new(MCAP_NAME), &topics.all())
+            .map_err(format_error)?;
+        Self::from_bag(bag, topics, Path::new(MCAP_NAME))
     }
 
-    pub(super) fn from_bag(bag: Bag, topics: &McapTopics) -> Result<Self, SysidError> {
+    /// `path` names the recording in errors.
+    pub(super) fn from_bag(
+        bag: Bag,
+        topics: &RecordingTopics,
+        path: &Path,
+    ) -> Result<Self, SysidError> {
         let mut drive = Vec::new();
-        let mut odom = Vec::new();
         for msg in &bag.messages {
             if msg.topic == topics.drive {
                 let d: AckermannDriveStamped =
@@ -54,38 +59,36 @@ impl Recording {
                     d.drive.steering_angle as f64,
                     d.drive.speed as f64,
                 ));
-            } else if msg.topic == topics.odom {
-                let o: Odometry = from_cdr(&msg.data).map_err(|e| SysidError::Format {
-                    message: format!("{} message {}: {e}", topics.odom, odom.len()),
-                })?;
-                odom.push((msg.log_time, state_of(&o)));
             }
         }
-        let known = bag.topics.keys().cloned().collect::<Vec<_>>().join(", ");
         if drive.is_empty() {
             return Err(SysidError::Format {
                 message: format!(
-                    "no messages on the drive topic {:?} (topics in the file: {known})",
-                    topics.drive
+                    "no messages on the drive topic {:?} (topics in the file: {})",
+                    topics.drive,
+                    bag.topic_list()
                 ),
             });
         }
-        if odom.is_empty() {
+        let track =
+            planar_track(&bag, path, topics.pose_topic(), &topics.odom).map_err(format_error)?;
+        if track.samples.is_empty() {
             return Err(SysidError::Format {
                 message: format!(
-                    "no messages on the odometry topic {:?} (topics in the file: {known})",
-                    topics.odom
+                    "no finite pose on {:?} ({})",
+                    topics.pose_topic(),
+                    track.notes.join("; ")
                 ),
             });
         }
         drive.sort_by_key(|d| d.0);
-        odom.sort_by_key(|o| o.0);
-        let t0 = drive[0].0.min(odom[0].0);
+        let t0 = drive[0].0.min(track.samples[0].log_time);
         let secs = |ns: u64| (ns - t0) as f64 * 1e-9;
         let mut rec = Recording::default();
         if let Some(t) = &bag.truncation {
             rec.warnings.push(t.to_string());
         }
+        rec.warnings.extend(track.notes);
         for (t, steer, speed) in drive {
             if !(steer.is_finite() && speed.is_finite()) {
                 rec.warnings.push(format!(
@@ -100,29 +103,27 @@ impl Recording {
                 speed,
             });
         }
-        let mut non_finite = 0usize;
-        for (t, mut s) in odom {
-            s.t = secs(t);
-            if !(s.x.is_finite() && s.y.is_finite() && s.yaw.is_finite()) {
-                non_finite += 1;
-                continue;
-            }
-            rec.states.push(s);
-        }
-        if non_finite > 0 {
-            rec.warnings.push(format!(
-                "{non_finite} odometry messages with a non-finite pose skipped"
-            ));
+        for s in track.samples {
+            let p = s.state;
+            rec.states.push(StateSample {
+                t: secs(s.log_time),
+                x: p.x,
+                y: p.y,
+                yaw: p.yaw,
+                vx: p.vx,
+                vy: p.vy,
+                yaw_rate: p.yaw_rate,
+            });
         }
         let runs = clean::into_runs(rec.commands, rec.states, false, rec.warnings, "bag")?;
         Ok(Self::join(runs))
     }
 
     /// Write a ROS 2 bag (uncompressed MCAP) with the drive and odometry topics.
-    pub fn to_mcap(&self, topics: &McapTopics) -> Result<Vec<u8>, SysidError> {
+    pub fn to_mcap(&self, topics: &RecordingTopics) -> Result<Vec<u8>, SysidError> {
         let library = concat!("paddock-sysid ", env!("CARGO_PKG_VERSION"));
-        let mut bag = McapBag::new(Cursor::new(Vec::new()), "the MCAP recording", library)
-            .map_err(format_error)?;
+        let mut bag =
+            McapBag::new(Cursor::new(Vec::new()), MCAP_NAME, library).map_err(format_error)?;
         bag.add_topic::<AckermannDriveStamped>(&topics.drive)
             .map_err(format_error)?;
         bag.add_topic::<Odometry>(&topics.odom)
@@ -156,20 +157,6 @@ impl Recording {
 
 fn secs_to_ns(t: f64) -> u64 {
     (t * 1e9).round().max(0.0) as u64
-}
-
-/// The state of an `Odometry` (twist in the child, i.e. body, frame); `t` is left 0.
-fn state_of(o: &Odometry) -> StateSample {
-    let s = o.planar_state();
-    StateSample {
-        t: 0.0,
-        x: s.x,
-        y: s.y,
-        yaw: s.yaw,
-        vx: s.vx,
-        vy: s.vy,
-        yaw_rate: s.yaw_rate,
-    }
 }
 
 fn drive_message(ns: u64, steer: f64, speed: f64) -> AckermannDriveStamped {
@@ -244,9 +231,10 @@ mod tests {
     #[test]
     fn mcap_round_trip() {
         let r = recording(200);
-        let topics = McapTopics {
+        let topics = RecordingTopics {
             drive: "/car/drive".into(),
             odom: "/car/odom".into(),
+            pose: None,
         };
         let bytes = r.to_mcap(&topics).unwrap();
         let back = Recording::from_mcap(&bytes, &topics).unwrap();
@@ -264,7 +252,7 @@ mod tests {
             (1.0, 0.1, 0.2)
         );
         assert!((back.commands[7].steer - 0.1).abs() < 1e-6);
-        let e = Recording::from_mcap(&bytes, &McapTopics::default()).unwrap_err();
+        let e = Recording::from_mcap(&bytes, &RecordingTopics::default()).unwrap_err();
         assert!(e.to_string().contains("/car/drive"), "{e}");
         let e = Recording::from_mcap(b"\x89MCAP0\r\ngarbage", &topics).unwrap_err();
         assert!(e.to_string().contains("MCAP"), "{e}");
@@ -274,7 +262,7 @@ mod tests {
     #[test]
     fn the_bag_carries_the_ros_messages_and_their_schemas() {
         let r = recording(120);
-        let bytes = r.to_mcap(&McapTopics::default()).unwrap();
+        let bytes = r.to_mcap(&RecordingTopics::default()).unwrap();
         let bag = paddock_recordings::read_mcap(&bytes, Path::new("x.mcap"), &["/odom", "/drive"])
             .unwrap();
         assert_eq!(
