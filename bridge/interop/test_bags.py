@@ -13,7 +13,10 @@
   VESC's odometry at its own times, whose lateral speed is never set and whose yaw rate
   is computed from the steering command. export-csv and sysid read the pose from
   `--pose-topic` and interpolate the speed; sysid fits only the pose and the speed
-  (`--channels pose+speed`) and finds the steering gain hidden in the recording.
+  (`--channels pose+speed`) and finds the steering gain hidden in the recording. The same
+  with the pose only in the transforms (`/tf`: the localiser's `map -> odom` at 10 Hz,
+  the odometry's `odom -> base_link`; `/tf_static` mounting the laser), chained and
+  interpolated.
 """
 
 import csv
@@ -161,12 +164,17 @@ def test_a_rosbags_db3_bag_is_read_by_export_csv_and_sysid(paddock_bin, tmp_path
 WHEELBASE_M = 0.3302  # the default vehicle's lf + lr, as the VESC's odometry node takes it
 
 
-def write_car_mcap_bag(rows, bag_dir):
+def write_car_mcap_bag(rows, bag_dir, pose_in_tf=False):
     """A real car's bag from the rows of a reality-gap CSV: `/drive` commands and the true
     pose from motion capture (`/mocap/pose`, PoseStamped) at the rows' times; the VESC's
     `/odom` half a period later at each, its speed interpolated, its lateral speed 0 (never
     set), its yaw rate the kinematic one of the steering command and its pose dead reckoned
-    from those, as vesc_to_odom publishes them."""
+    from those, as vesc_to_odom publishes them.
+
+    With `pose_in_tf` the pose is in the transforms instead, as a car with slam_toolbox or
+    Cartographer logs it: `/tf` carries the odometry's `odom -> base_link` at the rows'
+    times and the localiser's correction `map -> odom` at every fourth (10 Hz), such that
+    the chain gives the true pose there; `/tf_static` mounts the laser."""
     ts = humble_typestore()
     t = ts.types
     Time = t["builtin_interfaces/msg/Time"]
@@ -190,11 +198,31 @@ def write_car_mcap_bag(rows, bag_dir):
         )
 
     dr = [0.0, 0.0, 0.0]  # the VESC's dead reckoning
+    odometry_tf, sent = [], {}  # what /tf carries: (ns, odom -> base_link), {ns: map -> odom}
     with Writer(bag_dir, version=8, storage_plugin=StoragePlugin.MCAP) as w:
         drive = w.add_connection("/drive", DriveStamped.__msgtype__, typestore=ts)
-        mocap = w.add_connection("/mocap/pose", PoseStamped.__msgtype__, typestore=ts)
+        if pose_in_tf:
+            TF, TS = t["tf2_msgs/msg/TFMessage"], t["geometry_msgs/msg/TransformStamped"]
+            Transform = t["geometry_msgs/msg/Transform"]
+            tf = w.add_connection("/tf", TF.__msgtype__, typestore=ts)
+            tf_static = w.add_connection("/tf_static", TF.__msgtype__, typestore=ts)
+
+            def transform(ns, parent, child, x, y, yaw):
+                return TS(
+                    header=Header(stamp=stamp(ns), frame_id=parent),
+                    child_frame_id=child,
+                    transform=Transform(
+                        translation=V3(x=x, y=y, z=0.0),
+                        rotation=Quat(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+                    ),
+                )
+
+            mount = TF(transforms=[transform(base, "base_link", "laser", 0.27, 0.0, 0.0)])
+            w.write(tf_static, base, ts.serialize_cdr(mount, TF.__msgtype__))
+        else:
+            mocap = w.add_connection("/mocap/pose", PoseStamped.__msgtype__, typestore=ts)
         odom = w.add_connection("/odom", Odom.__msgtype__, typestore=ts)
-        for r, nxt in zip(rows, rows[1:]):
+        for i, (r, nxt) in enumerate(zip(rows, rows[1:])):
             ns = base + round(r["t"] * 1e9)
             cmd = DriveStamped(
                 header=Header(stamp=stamp(ns), frame_id="base_link"),
@@ -204,9 +232,24 @@ def write_car_mcap_bag(rows, bag_dir):
                 ),
             )
             w.write(drive, ns, ts.serialize_cdr(cmd, DriveStamped.__msgtype__))
-            p = PoseStamped(header=Header(stamp=stamp(ns), frame_id="map"),
-                            pose=pose(r["x"], r["y"], r["yaw"]))
-            w.write(mocap, ns, ts.serialize_cdr(p, PoseStamped.__msgtype__))
+            if pose_in_tf:
+                # odom -> base_link is the dead reckoning; map -> odom = truth * odom^-1
+                ox, oy, oyaw = dr
+                transforms = [transform(ns, "odom", "base_link", ox, oy, oyaw)]
+                if i % 4 == 0:
+                    cyaw = r["yaw"] - oyaw
+                    c, s_ = math.cos(cyaw), math.sin(cyaw)
+                    cx = r["x"] - (c * ox - s_ * oy)
+                    cy = r["y"] - (s_ * ox + c * oy)
+                    transforms.append(transform(ns, "map", "odom", cx, cy, cyaw))
+                    sent[ns] = (cx, cy, cyaw)
+                odometry_tf.append((ns, (ox, oy, oyaw)))
+                msg = TF(transforms=transforms)
+                w.write(tf, ns, ts.serialize_cdr(msg, TF.__msgtype__))
+            else:
+                p = PoseStamped(header=Header(stamp=stamp(ns), frame_id="map"),
+                                pose=pose(r["x"], r["y"], r["yaw"]))
+                w.write(mocap, ns, ts.serialize_cdr(p, PoseStamped.__msgtype__))
             # the VESC half a period later
             dt = nxt["t"] - r["t"]
             ns_v = base + round((r["t"] + dt / 2) * 1e9)
@@ -227,6 +270,7 @@ def write_car_mcap_bag(rows, bag_dir):
                 ),
             )
             w.write(odom, ns_v, ts.serialize_cdr(o, Odom.__msgtype__))
+    return odometry_tf, sent
 
 
 def test_a_cars_bag_with_pose_and_speed_on_their_own_topics(paddock_bin, tmp_path):
@@ -285,6 +329,73 @@ def test_a_cars_bag_with_pose_and_speed_on_their_own_topics(paddock_bin, tmp_pat
     warnings = rep["recording"]["warnings"]
     assert "measured but left out (--channels pose+speed): yaw_rate" in warnings, warnings
     assert set(rep["recording"]["channels_missing"]) == {"vy", "yaw_rate"}, rep["recording"]
+    (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
+    assert gain["significant"], gain
+    assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain
+
+
+def test_a_cars_bag_with_its_pose_only_in_the_transforms(paddock_bin, tmp_path):
+    synth = tmp_path / "synth.csv"
+    r = run(
+        paddock_bin, "sysid", "synth", "--out", str(synth), "--seconds", "40",
+        "--effect", "steering_gain:gain=0.85",
+    )
+    assert r.returncode == 0, r.stderr
+    rows = read_csv(synth)
+    bag = tmp_path / "car_bag"
+    odometry_tf, corrections = write_car_mcap_bag(rows, bag, pose_in_tf=True)
+
+    out = tmp_path / "export.csv"
+    r = run(paddock_bin, "bridge", "export-csv", str(bag), "--out", str(out), "--pose-topic", "/tf")
+    assert r.returncode == 0, r.stderr
+    got = read_csv(out)
+    # a pose per odometry transform between the first and the last correction
+    last = 4 * ((len(rows) - 2) // 4)
+    assert len(got) == last + 1, (len(got), last + 1)
+    # the correction where it was sent, interpolated in log time between (the yaw the
+    # shorter way), then the odometry's transform
+    times = sorted(corrections)
+    for j, (a, (ns, (ox, oy, oyaw))) in enumerate(zip(got, odometry_tf)):
+        k = min(max(0, (j // 4)), len(times) - 2)
+        t0, t1 = times[k], times[k + 1]
+        c0, c1 = corrections[t0], corrections[t1]
+        u = (ns - t0) / (t1 - t0)
+        dyaw = math.remainder(c1[2] - c0[2], math.tau)
+        cx, cy = c0[0] + u * (c1[0] - c0[0]), c0[1] + u * (c1[1] - c0[1])
+        cyaw = c0[2] + u * dyaw
+        want_x = cx + math.cos(cyaw) * ox - math.sin(cyaw) * oy
+        want_y = cy + math.sin(cyaw) * ox + math.cos(cyaw) * oy
+        assert a["x"] == pytest.approx(want_x, abs=1e-9), j
+        assert a["y"] == pytest.approx(want_y, abs=1e-9), j
+        if j % 4 == 0:  # where the correction was sent: the truth itself
+            assert a["x"] == pytest.approx(rows[j]["x"], abs=1e-9), j
+            assert a["y"] == pytest.approx(rows[j]["y"], abs=1e-9), j
+    # the laser's pose, through the static mount: 0.27 m ahead of the car
+    laser = tmp_path / "laser.csv"
+    r = run(
+        paddock_bin, "bridge", "export-csv", str(bag), "--out", str(laser), "--pose-topic", "/tf",
+        "--pose-frames", "map,laser",
+    )
+    assert r.returncode == 0, r.stderr
+    a, b = read_csv(laser)[8], rows[8]
+    assert a["x"] == pytest.approx(b["x"] + 0.27 * math.cos(b["yaw"]), abs=1e-9)
+    # frames the transforms do not join are named with those recorded
+    r = run(
+        paddock_bin, "bridge", "export-csv", str(bag), "--out", str(laser), "--pose-topic", "/tf",
+        "--pose-frames", "earth,base_link",
+    )
+    assert r.returncode != 0
+    assert 'no chain of transforms from "earth" to "base_link"' in r.stderr, r.stderr
+    assert "map -> odom" in r.stderr, r.stderr
+
+    report = tmp_path / "sysid"
+    r = run(
+        paddock_bin, "sysid", "--recording", str(bag), "--out", str(report), "--no-plots",
+        "--pose-topic", "/tf", "--channels", "pose+speed",
+        "--effects", "steering_gain", "--folds", "2",
+    )
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((report / "report.json").read_text())
     (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
     assert gain["significant"], gain
     assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain

@@ -227,7 +227,11 @@ pub fn read_gap_rows_reporting(
     topics: &RecordingTopics,
 ) -> Result<(Vec<GapRow>, GapReport), BridgeError> {
     let bad = |message: String| BridgeError::format(path, message);
-    let bag = read_bag(path, &topics.all()).map_err(bag_error)?;
+    let bag = read_bag(
+        path,
+        &topics.all().iter().map(String::as_str).collect::<Vec<_>>(),
+    )
+    .map_err(bag_error)?;
     if let Some(info) = bag.topics.get(topics.drive.as_str())
         && info.encoding != "cdr"
     {
@@ -255,7 +259,7 @@ pub fn read_gap_rows_reporting(
             bag.topic_list()
         )));
     }
-    let track = planar_track(&bag, path, topics.pose_topic(), &topics.odom).map_err(bag_error)?;
+    let track = planar_track(&bag, path, topics).map_err(bag_error)?;
     drive.sort_by_key(|d| d.0);
     let first_cmd = drive[0].0;
     let mut rows = Vec::with_capacity(track.samples.len());

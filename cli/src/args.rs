@@ -103,6 +103,17 @@ pub fn vehicle(path: Option<&std::path::Path>) -> anyhow::Result<VehicleParams> 
 
 /// `cmd` and all its subcommands with negative numbers accepted as values (so `--laps -1`
 /// reaches the range check instead of reading as an unknown flag `-1`).
+/// The parser of `--pose-frames PARENT,CHILD`: two frame ids (a leading `/` is dropped
+/// when the transforms are read).
+pub fn frame_pair(text: &str) -> Result<[String; 2], String> {
+    match text.split(',').map(str::trim).collect::<Vec<_>>()[..] {
+        [p, c] if !p.is_empty() && !c.is_empty() && p != c => Ok([p.to_string(), c.to_string()]),
+        _ => Err(format!(
+            "{text:?}: two different frame ids, PARENT,CHILD (map,base_link)"
+        )),
+    }
+}
+
 pub fn allow_negative_numbers(cmd: clap::Command) -> clap::Command {
     let cmd = cmd.mut_args(|a| {
         if a.get_action().takes_values() {

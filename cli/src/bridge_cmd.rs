@@ -207,10 +207,15 @@ struct ExportArgs {
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
     /// The pose's own topic, a localiser's or motion capture's (nav_msgs/Odometry,
-    /// geometry_msgs/PoseStamped or PoseWithCovarianceStamped); the velocities at each
-    /// pose are interpolated from --odom-topic. Default: --odom-topic.
+    /// geometry_msgs/PoseStamped or PoseWithCovarianceStamped, or the transforms: /tf);
+    /// the velocities at each pose are interpolated from --odom-topic. Default:
+    /// --odom-topic.
     #[arg(long)]
     pose_topic: Option<String>,
+    /// With the transforms as the pose topic (--pose-topic /tf, with /tf_static): the
+    /// frames, PARENT,CHILD, whose pose is read [default: map,base_link].
+    #[arg(long, value_parser = args::frame_pair)]
+    pose_frames: Option<[String; 2]>,
 }
 
 /// The parser of `--laser-yaw`: as `args::number(-MAX_YAW, MAX_YAW)`, its range said as
@@ -510,6 +515,7 @@ fn export(a: &ExportArgs) -> Result<()> {
         drive: a.drive_topic.clone(),
         odom: a.odom_topic.clone(),
         pose: a.pose_topic.clone(),
+        pose_frames: a.pose_frames.clone(),
     };
     let (rows, report) = export_csv(&a.recording, &a.out, &topics)?;
     if let Some(t) = report.truncation {

@@ -64,10 +64,15 @@ struct AnalyseArgs {
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
     /// Bag topic of the pose, a localiser's or motion capture's (nav_msgs/Odometry,
-    /// geometry_msgs/PoseStamped or PoseWithCovarianceStamped); the velocities at each
-    /// pose are interpolated from --odom-topic. Default: --odom-topic.
+    /// geometry_msgs/PoseStamped or PoseWithCovarianceStamped, or the transforms: /tf);
+    /// the velocities at each pose are interpolated from --odom-topic. Default:
+    /// --odom-topic.
     #[arg(long)]
     pose_topic: Option<String>,
+    /// With the transforms as the pose topic (--pose-topic /tf, with /tf_static): the
+    /// frames, PARENT,CHILD, whose pose is read [default: map,base_link].
+    #[arg(long, value_parser = args::frame_pair)]
+    pose_frames: Option<[String; 2]>,
     /// Channels to fit: `all` (those measured), or the pose joined by `+` with any of
     /// speed (vx), vy, yaw_rate; `pose+speed` when the odometry's yaw rate is computed
     /// from the steering command (the VESC's) rather than measured.
@@ -177,6 +182,7 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
         drive: a.drive_topic.clone(),
         odom: a.odom_topic.clone(),
         pose: a.pose_topic.clone(),
+        pose_frames: a.pose_frames.clone(),
     };
     let mut files = Vec::new();
     for path in &a.recording {

@@ -7,9 +7,11 @@
 //! from the VESC's odometry (`/odom`, whose own pose is dead reckoning). [`planar_track`]
 //! takes the pose topic and the velocity topic apart:
 //!
-//! - the pose topic may carry `nav_msgs/msg/Odometry`, `geometry_msgs/msg/PoseStamped` or
-//!   `geometry_msgs/msg/PoseWithCovarianceStamped`; the velocity topic
-//!   `nav_msgs/msg/Odometry` (its twist, in the body frame). Both may be one topic;
+//! - the pose topic may carry `nav_msgs/msg/Odometry`, `geometry_msgs/msg/PoseStamped`,
+//!   `geometry_msgs/msg/PoseWithCovarianceStamped`, or the transforms
+//!   (`tf2_msgs/msg/TFMessage` on `/tf`, with `/tf_static`: the pose of one frame in
+//!   another, [`tf`]); the velocity topic `nav_msgs/msg/Odometry` (its twist, in the body
+//!   frame). Both may be one topic;
 //! - from another topic, the velocities at a pose are interpolated in log time between
 //!   the two velocity messages around it, when they are at most
 //!   [`MAX_VELOCITY_GAP_NS`] apart; elsewhere they are not measured (NaN);
@@ -21,9 +23,12 @@
 
 use std::path::Path;
 
+pub mod tf;
+
 use crate::cdr::from_cdr;
 use crate::msg::{
-    Odometry, PlanarState, Pose, PoseStamped, PoseWithCovarianceStamped, RosMessage, Twist,
+    Odometry, PlanarState, Pose, PoseStamped, PoseWithCovarianceStamped, RosMessage, TFMessage,
+    Twist,
 };
 use crate::{Bag, RecordingError};
 
@@ -36,7 +41,14 @@ pub struct RecordingTopics {
     pub odom: String,
     /// The pose's own topic (a localiser's or motion capture's): any of [`POSE_TYPES`].
     pub pose: Option<String>,
+    /// With transforms for the pose (`/tf`): the parent and the child frame whose pose is
+    /// read (default [`DEFAULT_POSE_FRAMES`]).
+    pub pose_frames: Option<[String; 2]>,
 }
+
+/// The frames a pose is read between from transforms unless said: the car's `base_link`
+/// in the `map`.
+pub const DEFAULT_POSE_FRAMES: [&str; 2] = ["map", "base_link"];
 
 impl RecordingTopics {
     /// The topic the pose is read from.
@@ -44,9 +56,20 @@ impl RecordingTopics {
         self.pose.as_deref().unwrap_or(&self.odom)
     }
 
+    /// The static transforms that go with transforms on the pose topic: `/tf_static` for
+    /// `/tf`.
+    pub fn static_tf_topic(&self) -> String {
+        format!("{}_static", self.pose_topic())
+    }
+
     /// Every topic read.
-    pub fn all(&self) -> Vec<&str> {
-        vec![&self.drive, &self.odom, self.pose_topic()]
+    pub fn all(&self) -> Vec<String> {
+        vec![
+            self.drive.clone(),
+            self.odom.clone(),
+            self.pose_topic().to_string(),
+            self.static_tf_topic(),
+        ]
     }
 }
 
@@ -56,15 +79,17 @@ impl Default for RecordingTopics {
             drive: "/drive".into(),
             odom: "/odom".into(),
             pose: None,
+            pose_frames: None,
         }
     }
 }
 
 /// The types a pose topic may carry.
-pub const POSE_TYPES: [&str; 3] = [
+pub const POSE_TYPES: [&str; 4] = [
     "nav_msgs/msg/Odometry",
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "tf2_msgs/msg/TFMessage",
 ];
 
 /// The longest time between two velocity messages that a pose between them takes its
@@ -98,6 +123,7 @@ enum PoseKind {
     Odometry,
     PoseStamped,
     PoseWithCovariance,
+    Transforms,
 }
 
 /// The type name as `pkg/msg/Type` (ROS 1 era tools write `pkg/Type`).
@@ -128,6 +154,7 @@ fn pose_kind(bag: &Bag, path: &Path, topic: &str) -> Result<PoseKind, RecordingE
             PoseWithCovarianceStamped::schema_name(),
             PoseKind::PoseWithCovariance,
         ),
+        (TFMessage::schema_name(), PoseKind::Transforms),
     ]
     .into_iter()
     .find(|(name, _)| *name == ty)
@@ -178,16 +205,28 @@ fn velocities(t: &Twist) -> [f64; 3] {
 
 const VELOCITY_NAMES: [&str; 3] = ["vx", "vy", "yaw_rate"];
 
-/// Read the track of `bag` (which must hold the messages of both topics): the pose from
-/// `pose_topic`, the velocities from `velocity_topic` (see the module docs). `path` names
-/// the recording in errors.
+/// Read the track of `bag` (which must hold the messages of [`RecordingTopics::all`]):
+/// the pose from its pose topic, the velocities from its odometry topic (see the module
+/// docs). `path` names the recording in errors.
 pub fn planar_track(
     bag: &Bag,
     path: &Path,
-    pose_topic: &str,
-    velocity_topic: &str,
+    topics: &RecordingTopics,
 ) -> Result<Track, RecordingError> {
+    let (pose_topic, velocity_topic) = (topics.pose_topic(), topics.odom.as_str());
     let kind = pose_kind(bag, path, pose_topic)?;
+    if kind != PoseKind::Transforms
+        && let Some([p, c]) = &topics.pose_frames
+    {
+        return Err(RecordingError::format(
+            path,
+            format!(
+                "pose frames {p},{c} are read from transforms (tf2_msgs/msg/TFMessage); the \
+                 pose topic {pose_topic:?} carries {}",
+                bag.topics[pose_topic].type_name
+            ),
+        ));
+    }
     let mut notes = Vec::new();
     let same = velocity_topic == pose_topic;
     // where the velocities come from: the pose's own Odometry, another topic, or nowhere
@@ -227,6 +266,16 @@ pub fn planar_track(
     };
 
     let mut poses: Vec<(u64, [f64; 3], [f64; 3])> = Vec::new();
+    if kind == PoseKind::Transforms {
+        let [parent, child] = topics
+            .pose_frames
+            .clone()
+            .unwrap_or(DEFAULT_POSE_FRAMES.map(String::from));
+        let static_topic = topics.static_tf_topic();
+        let (p, tf_notes) = tf::frame_poses(bag, path, pose_topic, &static_topic, &parent, &child)?;
+        poses = p.into_iter().map(|(t, p)| (t, p, [f64::NAN; 3])).collect();
+        notes.extend(tf_notes);
+    }
     let mut vels: Vec<(u64, [f64; 3])> = Vec::new();
     let (mut n_pose, mut n_vel, mut non_finite) = (0usize, 0usize, 0usize);
     for m in &bag.messages {
@@ -249,6 +298,8 @@ pub fn planar_track(
                     let p: PoseWithCovarianceStamped = decode(path, pose_topic, n_pose, &m.data)?;
                     (p.pose.pose, [f64::NAN; 3])
                 }
+                // read above, by `tf`
+                PoseKind::Transforms => continue,
             };
             n_pose += 1;
             let p = pose.planar();
@@ -439,7 +490,12 @@ mod tests {
     }
 
     fn track(bag: &Bag, pose: &str, vel: &str) -> Result<Track, String> {
-        planar_track(bag, Path::new("run.mcap"), pose, vel).map_err(|e| e.to_string())
+        let topics = RecordingTopics {
+            odom: vel.into(),
+            pose: Some(pose.into()),
+            ..RecordingTopics::default()
+        };
+        planar_track(bag, Path::new("run.mcap"), &topics).map_err(|e| e.to_string())
     }
 
     #[test]
@@ -558,6 +614,149 @@ mod tests {
         let e = track(&bag, "/broken", "/broken").unwrap_err();
         assert!(
             e.contains("/broken message 0 is not a valid nav_msgs/msg/Odometry"),
+            "{e}"
+        );
+    }
+
+    fn transform(parent: &str, child: &str, p: [f64; 3]) -> crate::msg::TransformStamped {
+        let mut t = crate::msg::TransformStamped {
+            header: Header::new(Time::default(), parent),
+            child_frame_id: child.into(),
+            ..Default::default()
+        };
+        t.transform.translation.x = p[0];
+        t.transform.translation.y = p[1];
+        t.transform.rotation = Quaternion::from_yaw(p[2]);
+        t
+    }
+
+    fn inverse(p: [f64; 3]) -> [f64; 3] {
+        let (s, c) = p[2].sin_cos();
+        [-(c * p[0] + s * p[1]), -(-s * p[0] + c * p[1]), -p[2]]
+    }
+
+    fn compose(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+        let (s, c) = a[2].sin_cos();
+        [
+            a[0] + c * b[0] - s * b[1],
+            a[1] + s * b[0] + c * b[1],
+            a[2] + b[2],
+        ]
+    }
+
+    /// A car whose localiser publishes `map -> odom` at 10 Hz and whose odometry publishes
+    /// `odom -> base_link` at 50 Hz, drifting; the laser is mounted by `/tf_static`.
+    fn tf_recording() -> (Bag, impl Fn(u64) -> [f64; 3]) {
+        let truth = |t: u64| {
+            let s = t as f64 * 1e-9;
+            [s, 0.5 * s * s, 0.3 * s]
+        };
+        let drift = |t: u64| {
+            let s = t as f64 * 1e-9;
+            [0.1 * s, -0.05 * s, 0.02 * s]
+        };
+        let mut r = Rec::default();
+        r.add(
+            "/tf_static",
+            0,
+            &TFMessage {
+                transforms: vec![transform("base_link", "laser", [0.27, 0.0, 0.0])],
+            },
+        );
+        for k in 0..=150u64 {
+            let t = k * S / 50;
+            // the odometry's pose: the truth seen from a drifting frame
+            let odom = compose(drift(t), truth(t));
+            let mut transforms = vec![transform("odom", "/base_link", odom)];
+            if k % 5 == 0 {
+                // the localiser's correction, with a stack's leading slash on one side
+                transforms.push(transform("/map", "odom", inverse(drift(t))));
+            }
+            r.add("/tf", t, &TFMessage { transforms });
+        }
+        (r.bag(), truth)
+    }
+
+    fn tf_track(bag: &Bag, frames: Option<[&str; 2]>) -> Result<Track, String> {
+        let topics = RecordingTopics {
+            pose: Some("/tf".into()),
+            pose_frames: frames.map(|f| f.map(String::from)),
+            ..RecordingTopics::default()
+        };
+        planar_track(bag, Path::new("run.mcap"), &topics).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_pose_from_the_transforms_chains_the_localiser_and_the_odometry() {
+        let (bag, truth) = tf_recording();
+        let t = tf_track(&bag, None).unwrap();
+        // every 50-Hz odometry transform within the localiser's first and last: 151
+        assert_eq!(t.samples.len(), 151);
+        let mut worst = 0.0f64;
+        for s in &t.samples {
+            let want = truth(s.log_time);
+            let got = [s.state.x, s.state.y, s.state.yaw];
+            for c in 0..3 {
+                worst = worst.max((got[c] - want[c]).abs());
+            }
+            assert!(s.state.vx.is_nan());
+        }
+        // the correction interpolated between its 10-Hz messages
+        assert!(worst < 2e-3, "{worst}");
+        assert!(
+            t.notes
+                .iter()
+                .any(|n| n.contains("no messages on the velocity topic"))
+        );
+        // the laser, through the static mount
+        let t = tf_track(&bag, Some(["map", "laser"])).unwrap();
+        let s = t.samples[100];
+        let want = compose(truth(s.log_time), [0.27, 0.0, 0.0]);
+        assert!((s.state.x - want[0]).abs() < 2e-3 && (s.state.y - want[1]).abs() < 2e-3);
+    }
+
+    #[test]
+    fn transforms_that_do_not_reach_are_named() {
+        let (bag, _) = tf_recording();
+        let e = tf_track(&bag, Some(["earth", "base_link"])).unwrap_err();
+        assert!(
+            e.contains("no chain of transforms from \"earth\" to \"base_link\""),
+            "{e}"
+        );
+        assert!(
+            e.ends_with(
+                "the transforms recorded: odom -> base_link, base_link -> laser, map -> odom"
+            ),
+            "{e}"
+        );
+        // frames given for a pose that is not a transform
+        let mut r = Rec::default();
+        r.add("/odom", 0, &odom(0.0, 1.0, 0.0, 0.0));
+        let topics = RecordingTopics {
+            pose_frames: Some(["map".into(), "base_link".into()]),
+            ..RecordingTopics::default()
+        };
+        let e = planar_track(&r.bag(), Path::new("run.mcap"), &topics)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("pose frames map,base_link are read from transforms"),
+            "{e}"
+        );
+        // a frame with two parents
+        let mut r = Rec::default();
+        for (k, p) in ["odom", "map"].iter().enumerate() {
+            r.add(
+                "/tf",
+                k as u64,
+                &TFMessage {
+                    transforms: vec![transform(p, "base_link", [0.0; 3])],
+                },
+            );
+        }
+        let e = tf_track(&r.bag(), None).unwrap_err();
+        assert!(
+            e.contains("not a tree: base_link has two parents, odom and map"),
             "{e}"
         );
     }

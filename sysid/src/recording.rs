@@ -150,10 +150,12 @@ impl Recording {
 
     fn load_inner(path: &Path, topics: &RecordingTopics) -> Result<Self, SysidError> {
         let rec = if paddock_recordings::is_bag(path) {
-            let bag = paddock_recordings::read_bag(path, &topics.all()).map_err(|e| {
-                SysidError::Format {
-                    message: e.to_string(),
-                }
+            let bag = paddock_recordings::read_bag(
+                path,
+                &topics.all().iter().map(String::as_str).collect::<Vec<_>>(),
+            )
+            .map_err(|e| SysidError::Format {
+                message: e.to_string(),
             })?;
             Self::from_bag(bag, topics, path)?
         } else {

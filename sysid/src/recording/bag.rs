@@ -36,8 +36,12 @@ impl Recording {
     /// `paddock_recordings::track`), all CDR. Time is the log time, from the first message
     /// of either.
     pub fn from_mcap(bytes: &[u8], topics: &RecordingTopics) -> Result<Self, SysidError> {
-        let bag = paddock_recordings::read_mcap(bytes, Path::new(MCAP_NAME), &topics.all())
-            .map_err(format_error)?;
+        let bag = paddock_recordings::read_mcap(
+            bytes,
+            Path::new(MCAP_NAME),
+            &topics.all().iter().map(String::as_str).collect::<Vec<_>>(),
+        )
+        .map_err(format_error)?;
         Self::from_bag(bag, topics, Path::new(MCAP_NAME))
     }
 
@@ -70,8 +74,7 @@ impl Recording {
                 ),
             });
         }
-        let track =
-            planar_track(&bag, path, topics.pose_topic(), &topics.odom).map_err(format_error)?;
+        let track = planar_track(&bag, path, topics).map_err(format_error)?;
         if track.samples.is_empty() {
             return Err(SysidError::Format {
                 message: format!(
@@ -234,7 +237,7 @@ mod tests {
         let topics = RecordingTopics {
             drive: "/car/drive".into(),
             odom: "/car/odom".into(),
-            pose: None,
+            ..RecordingTopics::default()
         };
         let bytes = r.to_mcap(&topics).unwrap();
         let back = Recording::from_mcap(&bytes, &topics).unwrap();
