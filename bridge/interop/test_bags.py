@@ -17,6 +17,8 @@
   with the pose only in the transforms (`/tf`: the localiser's `map -> odom` at 10 Hz,
   the odometry's `odom -> base_link`; `/tf_static` mounting the laser), chained and
   interpolated.
+- Bags compressed by rosbag2 (rosbags' zstd `file` and `message` modes, in SQLite3 and
+  MCAP storage) export the same rows as the plain bag.
 """
 
 import csv
@@ -29,7 +31,7 @@ import pytest
 from mcap.reader import make_reader
 import json
 
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.interfaces import QosDurability, QosHistory, QosReliability
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -72,9 +74,10 @@ def read_csv(path):
         ]
 
 
-def write_db3_bag(rows, bag_dir):
-    """The rows of a reality-gap CSV as a rosbag2 SQLite3 bag: a drive command and an
-    odometry message per row, stamped and logged at the row's time (from 1.7e9 s)."""
+def write_db3_bag(rows, bag_dir, storage=StoragePlugin.SQLITE3, compression=None):
+    """The rows of a reality-gap CSV as a rosbag2 bag (SQLite3 storage unless `storage`;
+    rosbag2's zstd `compression` mode, if any): a drive command and an odometry message
+    per row, stamped and logged at the row's time (from 1.7e9 s)."""
     ts = humble_typestore()
     t = ts.types
     Time = t["builtin_interfaces/msg/Time"]
@@ -84,7 +87,10 @@ def write_db3_bag(rows, bag_dir):
     DriveStamped = t["ackermann_msgs/msg/AckermannDriveStamped"]
     g = t
     base = 1_700_000_000_000_000_000
-    with Writer(bag_dir, version=8, storage_plugin=StoragePlugin.SQLITE3) as w:
+    writer = Writer(bag_dir, version=8, storage_plugin=storage)
+    if compression is not None:
+        writer.set_compression(compression, CompressionFormat.ZSTD)
+    with writer as w:
         drive_conn = w.add_connection("/drive", DriveStamped.__msgtype__, typestore=ts)
         odom_conn = w.add_connection("/odom", Odom.__msgtype__, typestore=ts)
         cov = __import__("numpy").zeros(36)
@@ -399,6 +405,30 @@ def test_a_cars_bag_with_its_pose_only_in_the_transforms(paddock_bin, tmp_path):
     (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
     assert gain["significant"], gain
     assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain
+
+
+@pytest.mark.parametrize("storage", [StoragePlugin.SQLITE3, StoragePlugin.MCAP])
+@pytest.mark.parametrize("compression", [CompressionMode.FILE, CompressionMode.MESSAGE])
+def test_compressed_bags_read_as_the_plain_one(paddock_bin, tmp_path, storage, compression):
+    synth = tmp_path / "synth.csv"
+    r = run(paddock_bin, "sysid", "synth", "--out", str(synth), "--seconds", "10")
+    assert r.returncode == 0, r.stderr
+    rows = read_csv(synth)
+    plain, packed = tmp_path / "plain", tmp_path / "packed"
+    write_db3_bag(rows, plain, storage)
+    write_db3_bag(rows, packed, storage, compression)
+    names = [p.name for p in packed.iterdir() if p.name != "metadata.yaml"]
+    assert len(names) == 1 and names[0].endswith(".zstd") == (compression == CompressionMode.FILE)
+    # the whole folder, and a file compressed whole given bare
+    sources = [packed] + ([packed / names[0]] if compression == CompressionMode.FILE else [])
+    r = run(paddock_bin, "bridge", "export-csv", str(plain), "--out", str(tmp_path / "a.csv"))
+    assert r.returncode == 0, r.stderr
+    want = (tmp_path / "a.csv").read_text()
+    for source in sources:
+        out = tmp_path / "b.csv"
+        r = run(paddock_bin, "bridge", "export-csv", str(source), "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        assert out.read_text() == want, source
 
 
 def test_a_killed_recorder_leaves_a_recording_export_csv_recovers(paddock, domain_id, tmp_path):

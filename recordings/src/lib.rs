@@ -13,6 +13,11 @@
 //!   Humble's default storage) or MCAP, as `metadata.yaml` says;
 //! - a bare **`.db3`** file of such a bag.
 //!
+//! rosbag2's compression (`ros2 bag record --compression-mode file|message
+//! --compression-format zstd`) is read too: a folder whose storage files are each one zstd
+//! stream (`*.mcap.zstd`, `*.db3.zstd`; a bare one of them as well), or whose messages are
+//! each compressed, as `metadata.yaml` says.
+//!
 //! [`read_bag`] takes any of them and returns the messages of the topics asked for, in
 //! log-time order, as their serialized bytes (CDR with its encapsulation header, the same
 //! bytes in both storages), which [`cdr::from_cdr`] decodes into [`msg`] types.
@@ -143,7 +148,7 @@ pub fn is_bag(path: &Path) -> bool {
         return path.join("metadata.yaml").is_file();
     }
     let ext = |e: &str| path.extension().is_some_and(|x| x.eq_ignore_ascii_case(e));
-    if ext("mcap") || ext("db3") {
+    if ext("mcap") || ext("db3") || compressed_storage(path).is_some() {
         return true;
     }
     let mut magic = [0u8; 5];
@@ -157,6 +162,9 @@ pub fn is_bag(path: &Path) -> bool {
 pub fn read_bag(path: &Path, topics: &[&str]) -> Result<Bag, RecordingError> {
     if path.is_dir() {
         return read_bag_folder(path, topics);
+    }
+    if let Some(storage) = compressed_storage(path) {
+        return read_compressed_file(path, storage, topics);
     }
     if path
         .extension()
@@ -354,7 +362,57 @@ pub fn read_db3(path: &Path, topics: &[&str]) -> Result<Bag, RecordingError> {
     })
 }
 
-/// Read a rosbag2 bag folder: `metadata.yaml` names the storage and its files.
+/// The storage of a file that rosbag2 compressed whole: `sqlite3` for `*.db3.zstd`,
+/// `mcap` for `*.mcap.zstd`.
+fn compressed_storage(path: &Path) -> Option<&'static str> {
+    let name = path.file_name()?.to_str()?.to_ascii_lowercase();
+    if name.ends_with(".db3.zstd") {
+        Some("sqlite3")
+    } else if name.ends_with(".mcap.zstd") {
+        Some("mcap")
+    } else {
+        None
+    }
+}
+
+/// The bytes of a zstd-compressed file.
+fn decompress_file(path: &Path) -> Result<Vec<u8>, RecordingError> {
+    let file = std::fs::File::open(path).map_err(|e| RecordingError::io(path, e))?;
+    zstd::stream::decode_all(std::io::BufReader::new(file)).map_err(|e| {
+        RecordingError::format(
+            path,
+            format!("not a whole zstd stream (rosbag2 file compression): {e}"),
+        )
+    })
+}
+
+/// Read a storage file that rosbag2 compressed whole (`storage`: `sqlite3` or `mcap`).
+/// SQLite reads files, so a `.db3` is decompressed into a temporary file first.
+fn read_compressed_file(
+    path: &Path,
+    storage: &str,
+    topics: &[&str],
+) -> Result<Bag, RecordingError> {
+    let bytes = decompress_file(path)?;
+    if storage == "mcap" {
+        return read_mcap(&bytes, path, topics);
+    }
+    let mut tmp = tempfile::Builder::new()
+        .prefix("paddock-bag-")
+        .suffix(".db3")
+        .tempfile()
+        .map_err(|e| RecordingError::io(path, e))?;
+    std::io::Write::write_all(&mut tmp, &bytes).map_err(|e| RecordingError::io(path, e))?;
+    drop(bytes);
+    // errors name the user's file, not the temporary one
+    read_db3(tmp.path(), topics).map_err(|e| match e {
+        RecordingError::Format { message, .. } => RecordingError::format(path, message),
+        RecordingError::Io { source, .. } => RecordingError::io(path, source),
+    })
+}
+
+/// Read a rosbag2 bag folder: `metadata.yaml` names the storage, its files and their
+/// compression.
 pub fn read_bag_folder(dir: &Path, topics: &[&str]) -> Result<Bag, RecordingError> {
     let meta_path = dir.join("metadata.yaml");
     let text =
@@ -383,21 +441,60 @@ pub fn read_bag_folder(dir: &Path, topics: &[&str]) -> Result<Bag, RecordingErro
             "rosbag2_bagfile_information.relative_file_paths lists no storage file",
         ));
     }
+    if !matches!(storage, "sqlite3" | "mcap") {
+        return Err(RecordingError::format(
+            &meta_path,
+            format!("storage_identifier = {storage:?}: only sqlite3 and mcap are read"),
+        ));
+    }
+    let mode = info["compression_mode"]
+        .as_str()
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let format = info["compression_format"].as_str().unwrap_or("");
+    let (whole_files, per_message) = match mode.as_str() {
+        "" | "none" => (false, false),
+        "file" | "message" if format.eq_ignore_ascii_case("zstd") => {
+            (mode == "file", mode == "message")
+        }
+        "file" | "message" => {
+            return Err(RecordingError::format(
+                &meta_path,
+                format!(
+                    "compression_format = {format:?}: only zstd (rosbag2's compressor) is read"
+                ),
+            ));
+        }
+        other => {
+            return Err(RecordingError::format(
+                &meta_path,
+                format!("compression_mode = {other:?}: file, message or none"),
+            ));
+        }
+    };
     let mut out: Option<Bag> = None;
     for file in &files {
-        let bag = match storage {
-            "sqlite3" => read_db3(file, topics)?,
-            "mcap" => {
+        let mut bag = match (whole_files, storage) {
+            (true, _) => read_compressed_file(file, storage, topics)?,
+            (false, "sqlite3") => read_db3(file, topics)?,
+            _ => {
                 let bytes = std::fs::read(file).map_err(|e| RecordingError::io(file, e))?;
                 read_mcap(&bytes, file, topics)?
             }
-            other => {
-                return Err(RecordingError::format(
-                    &meta_path,
-                    format!("storage_identifier = {other:?}: only sqlite3 and mcap are read"),
-                ));
-            }
         };
+        if per_message {
+            for (k, m) in bag.messages.iter_mut().enumerate() {
+                m.data = zstd::stream::decode_all(&m.data[..]).map_err(|e| {
+                    RecordingError::format(
+                        file,
+                        format!(
+                            "message {k} on {}: not zstd as compression_mode = message says: {e}",
+                            m.topic
+                        ),
+                    )
+                })?;
+            }
+        }
         out = Some(match out {
             None => bag,
             Some(mut acc) => {

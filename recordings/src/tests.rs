@@ -149,3 +149,101 @@ fn bag_folders_name_their_problems() {
     assert!(e.contains("junk.db3"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// rosbag2's compression: whole files (`*.mcap.zstd`, also given bare) and each message,
+/// as `metadata.yaml` says; what it does not say is refused by name.
+#[test]
+fn compressed_bags_are_read_as_metadata_says() {
+    let dir = std::env::temp_dir().join(format!("paddock-recordings-z-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let meta = |file: &str, mode: &str, format: &str| {
+        std::fs::write(
+            dir.join("metadata.yaml"),
+            format!(
+                "rosbag2_bagfile_information:\n  storage_identifier: mcap\n  \
+                 relative_file_paths: [{file}]\n  compression_mode: {mode}\n  \
+                 compression_format: {format}\n"
+            ),
+        )
+        .unwrap();
+    };
+    let plain = mcap_bytes(40, 4096);
+    let want = read_mcap(&plain, Path::new("x"), &["/a", "/b"]).unwrap();
+
+    // whole file
+    let z = zstd::stream::encode_all(&plain[..], 3).unwrap();
+    std::fs::write(dir.join("run_0.mcap.zstd"), &z).unwrap();
+    meta("run_0.mcap.zstd", "file", "zstd");
+    assert_eq!(
+        read_bag(&dir, &["/a", "/b"]).unwrap().messages,
+        want.messages
+    );
+    let bare = dir.join("run_0.mcap.zstd");
+    assert!(is_bag(&bare));
+    assert_eq!(
+        read_bag(&bare, &["/a", "/b"]).unwrap().messages,
+        want.messages
+    );
+
+    // each message (the MCAP itself plain)
+    let mut w = mcap::WriteOptions::new()
+        .compression(None)
+        .profile("ros2")
+        .create(Cursor::new(Vec::new()))
+        .unwrap();
+    let schema = w
+        .add_schema("std_msgs/msg/Int32", "ros2msg", b"int32 data")
+        .unwrap();
+    let a = w
+        .add_channel(schema, "/a", "cdr", &BTreeMap::new())
+        .unwrap();
+    for m in want.messages.iter().filter(|m| m.topic == "/a") {
+        let header = mcap::records::MessageHeader {
+            channel_id: a,
+            sequence: 0,
+            log_time: m.log_time,
+            publish_time: 0,
+        };
+        let data = zstd::stream::encode_all(&m.data[..], 3).unwrap();
+        w.write_to_known_channel(&header, &data).unwrap();
+    }
+    w.finish().unwrap();
+    std::fs::write(dir.join("run_1.mcap"), w.into_inner().into_inner()).unwrap();
+    meta("run_1.mcap", "message", "zstd");
+    let got = read_bag(&dir, &["/a"]).unwrap();
+    assert_eq!(got.messages.len(), 20);
+    assert!(
+        got.messages
+            .iter()
+            .zip(want.messages.iter().filter(|m| m.topic == "/a"))
+            .all(|(g, w)| g.data == w.data && g.log_time == w.log_time)
+    );
+
+    // what metadata.yaml says and the files disagree with, or cannot be read
+    meta("run_0.mcap.zstd", "message", "zstd");
+    let e = read_bag(&dir, &["/a"]).unwrap_err().to_string();
+    assert!(e.contains("run_0.mcap.zstd"), "{e}"); // not an MCAP: it is compressed whole
+    meta("run_1.mcap", "file", "zstd");
+    let e = read_bag(&dir, &["/a"]).unwrap_err().to_string();
+    assert!(e.contains("run_1.mcap: not a whole zstd stream"), "{e}");
+    meta("run_0.mcap", "message", "zstd");
+    std::fs::write(dir.join("run_0.mcap"), &plain).unwrap();
+    let e = read_bag(&dir, &["/a"]).unwrap_err().to_string();
+    assert!(
+        e.contains("message 0 on /a: not zstd as compression_mode = message says"),
+        "{e}"
+    );
+    meta("run_0.mcap.zstd", "file", "lz4");
+    let e = read_bag(&dir, &["/a"]).unwrap_err().to_string();
+    assert!(e.contains("compression_format = \"lz4\": only zstd"), "{e}");
+    meta("run_0.mcap.zstd", "chunk", "zstd");
+    let e = read_bag(&dir, &["/a"]).unwrap_err().to_string();
+    assert!(e.contains("compression_mode = \"chunk\""), "{e}");
+    // a bare compressed file that is not zstd
+    std::fs::write(dir.join("junk.db3.zstd"), b"plain text").unwrap();
+    let e = read_bag(&dir.join("junk.db3.zstd"), &["/a"])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("junk.db3.zstd: not a whole zstd stream"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}
