@@ -24,12 +24,11 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use paddock_recordings::cdr::from_cdr;
 use paddock_recordings::msg::{
     AckermannDriveStamped, LaserScan, Odometry, PlanarState, RosMessage, Stamped,
 };
 pub use paddock_recordings::track::RecordingTopics;
-use paddock_recordings::track::planar_track;
+use paddock_recordings::track::{drive_commands, planar_track};
 use paddock_recordings::write::McapBag;
 use paddock_recordings::{RecordingError, Truncation, read_bag};
 
@@ -232,36 +231,9 @@ pub fn read_gap_rows_reporting(
         &topics.all().iter().map(String::as_str).collect::<Vec<_>>(),
     )
     .map_err(bag_error)?;
-    if let Some(info) = bag.topics.get(topics.drive.as_str())
-        && info.encoding != "cdr"
-    {
-        return Err(bad(format!(
-            "topic {} has message encoding {:?}; only cdr (ROS 2) is read",
-            topics.drive, info.encoding
-        )));
-    }
-    let mut drive: Vec<(u64, f64, f64)> = Vec::new();
-    for m in &bag.messages {
-        if m.topic == topics.drive {
-            let d: AckermannDriveStamped = from_cdr(&m.data)
-                .map_err(|e| bad(format!("{} message {}: {e}", m.topic, drive.len())))?;
-            drive.push((
-                m.log_time,
-                d.drive.steering_angle as f64,
-                d.drive.speed as f64,
-            ));
-        }
-    }
-    if drive.is_empty() {
-        return Err(bad(format!(
-            "needs messages on {} (topics in the recording: {})",
-            topics.drive,
-            bag.topic_list()
-        )));
-    }
+    let drive = drive_commands(&bag, path, topics).map_err(bag_error)?;
     let track = planar_track(&bag, path, topics).map_err(bag_error)?;
-    drive.sort_by_key(|d| d.0);
-    let first_cmd = drive[0].0;
+    let first_cmd = drive[0].log_time;
     let mut rows = Vec::with_capacity(track.samples.len());
     let mut k = 0;
     let mut t0 = None;
@@ -270,14 +242,14 @@ pub fn read_gap_rows_reporting(
         if t < first_cmd {
             continue;
         }
-        while k + 1 < drive.len() && drive[k + 1].0 <= t {
+        while k + 1 < drive.len() && drive[k + 1].log_time <= t {
             k += 1;
         }
         let t0 = *t0.get_or_insert(t);
         rows.push(GapRow {
             t: (t - t0) as f64 * 1e-9,
-            steer_cmd: drive[k].1,
-            speed_cmd: drive[k].2,
+            steer_cmd: drive[k].steer,
+            speed_cmd: drive[k].speed,
             state: s.state,
         });
     }

@@ -27,8 +27,8 @@ pub mod tf;
 
 use crate::cdr::from_cdr;
 use crate::msg::{
-    Odometry, PlanarState, Pose, PoseStamped, PoseWithCovarianceStamped, RosMessage, TFMessage,
-    Twist,
+    AckermannDriveStamped, Odometry, PlanarState, Pose, PoseStamped, PoseWithCovarianceStamped,
+    RosMessage, TFMessage, Twist,
 };
 use crate::{Bag, RecordingError};
 
@@ -204,6 +204,56 @@ fn velocities(t: &Twist) -> [f64; 3] {
 }
 
 const VELOCITY_NAMES: [&str; 3] = ["vx", "vy", "yaw_rate"];
+
+/// A drive command as recorded: its log time [ns], steering angle [rad] and speed [m/s].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveCommand {
+    pub log_time: u64,
+    pub steer: f64,
+    pub speed: f64,
+}
+
+/// The drive commands of `bag` on `topics.drive` (`ackermann_msgs/msg/AckermannDriveStamped`,
+/// CDR), by log time; an error names the topic, its type and what the recording holds
+/// when there are none or they are not commands.
+pub fn drive_commands(
+    bag: &Bag,
+    path: &Path,
+    topics: &RecordingTopics,
+) -> Result<Vec<DriveCommand>, RecordingError> {
+    let topic = topics.drive.as_str();
+    let Some(info) = bag.topics.get(topic).filter(|i| i.messages > 0) else {
+        return Err(RecordingError::format(
+            path,
+            format!(
+                "no messages on the drive topic {topic:?} (topics in the recording: {})",
+                bag.topic_list()
+            ),
+        ));
+    };
+    check_encoding(path, topic, &info.encoding)?;
+    if canonical(&info.type_name) != AckermannDriveStamped::schema_name() {
+        return Err(RecordingError::format(
+            path,
+            format!(
+                "the drive topic {topic:?} carries {}; commands are read from {}",
+                info.type_name,
+                AckermannDriveStamped::schema_name()
+            ),
+        ));
+    }
+    let mut out = Vec::new();
+    for m in bag.messages.iter().filter(|m| m.topic == topic) {
+        let d: AckermannDriveStamped = decode(path, topic, out.len(), &m.data)?;
+        out.push(DriveCommand {
+            log_time: m.log_time,
+            steer: d.drive.steering_angle as f64,
+            speed: d.drive.speed as f64,
+        });
+    }
+    out.sort_by_key(|d| d.log_time);
+    Ok(out)
+}
 
 /// Read the track of `bag` (which must hold the messages of [`RecordingTopics::all`]):
 /// the pose from its pose topic, the velocities from its odometry topic (see the module
@@ -759,6 +809,42 @@ mod tests {
             e.contains("not a tree: base_link has two parents, odom and map"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn drive_commands_are_read_from_their_type_only() {
+        let mut r = Rec::default();
+        for k in [2u64, 0, 1] {
+            let mut d = AckermannDriveStamped::default();
+            d.drive.steering_angle = 0.25;
+            d.drive.speed = k as f32;
+            r.add("/drive", k * S, &d);
+        }
+        r.add("/odom", 0, &odom(0.0, 1.0, 0.0, 0.0));
+        let bag = r.bag();
+        let path = Path::new("run.mcap");
+        let got = drive_commands(&bag, path, &RecordingTopics::default()).unwrap();
+        assert_eq!(
+            got.iter()
+                .map(|d| (d.log_time, d.steer, d.speed))
+                .collect::<Vec<_>>(),
+            [(0, 0.25, 0.0), (S, 0.25, 1.0), (2 * S, 0.25, 2.0)]
+        );
+        let topics = |drive: &str| RecordingTopics {
+            drive: drive.into(),
+            ..RecordingTopics::default()
+        };
+        let e = drive_commands(&bag, path, &topics("/odom"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("the drive topic \"/odom\" carries nav_msgs/msg/Odometry; commands are read from ackermann_msgs/msg/AckermannDriveStamped"),
+            "{e}"
+        );
+        let e = drive_commands(&bag, path, &topics("/ackermann_cmd"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no messages on the drive topic \"/ackermann_cmd\" (topics in the recording: /drive (3"), "{e}");
     }
 
     #[test]

@@ -5,12 +5,11 @@
 use std::io::Cursor;
 use std::path::Path;
 
-use paddock_recordings::cdr::from_cdr;
 use paddock_recordings::msg::{
     AckermannDrive, AckermannDriveStamped, Header, Odometry, Pose, PoseWithCovariance, Quaternion,
     Time, Twist, TwistWithCovariance, Vector3,
 };
-use paddock_recordings::track::planar_track;
+use paddock_recordings::track::{drive_commands, planar_track};
 use paddock_recordings::write::McapBag;
 use paddock_recordings::{Bag, RecordingError};
 
@@ -51,29 +50,7 @@ impl Recording {
         topics: &RecordingTopics,
         path: &Path,
     ) -> Result<Self, SysidError> {
-        let mut drive = Vec::new();
-        for msg in &bag.messages {
-            if msg.topic == topics.drive {
-                let d: AckermannDriveStamped =
-                    from_cdr(&msg.data).map_err(|e| SysidError::Format {
-                        message: format!("{} message {}: {e}", topics.drive, drive.len()),
-                    })?;
-                drive.push((
-                    msg.log_time,
-                    d.drive.steering_angle as f64,
-                    d.drive.speed as f64,
-                ));
-            }
-        }
-        if drive.is_empty() {
-            return Err(SysidError::Format {
-                message: format!(
-                    "no messages on the drive topic {:?} (topics in the file: {})",
-                    topics.drive,
-                    bag.topic_list()
-                ),
-            });
-        }
+        let drive = drive_commands(&bag, path, topics).map_err(format_error)?;
         let track = planar_track(&bag, path, topics).map_err(format_error)?;
         if track.samples.is_empty() {
             return Err(SysidError::Format {
@@ -84,26 +61,25 @@ impl Recording {
                 ),
             });
         }
-        drive.sort_by_key(|d| d.0);
-        let t0 = drive[0].0.min(track.samples[0].log_time);
+        let t0 = drive[0].log_time.min(track.samples[0].log_time);
         let secs = |ns: u64| (ns - t0) as f64 * 1e-9;
         let mut rec = Recording::default();
         if let Some(t) = &bag.truncation {
             rec.warnings.push(t.to_string());
         }
         rec.warnings.extend(track.notes);
-        for (t, steer, speed) in drive {
-            if !(steer.is_finite() && speed.is_finite()) {
+        for d in drive {
+            if !(d.steer.is_finite() && d.speed.is_finite()) {
                 rec.warnings.push(format!(
                     "non-finite drive command at t = {:.3} s skipped",
-                    secs(t)
+                    secs(d.log_time)
                 ));
                 continue;
             }
             rec.commands.push(Command {
-                t: secs(t),
-                steer,
-                speed,
+                t: secs(d.log_time),
+                steer: d.steer,
+                speed: d.speed,
             });
         }
         for s in track.samples {
@@ -204,6 +180,7 @@ fn odometry_message(ns: u64, s: &StateSample) -> Odometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use paddock_recordings::cdr::from_cdr;
 
     /// `n` states 25 ms apart driving along x, a command with each.
     fn recording(n: usize) -> Recording {
