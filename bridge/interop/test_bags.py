@@ -279,14 +279,35 @@ def write_car_mcap_bag(rows, bag_dir, pose_in_tf=False):
     return odometry_tf, sent
 
 
-def test_a_cars_bag_with_pose_and_speed_on_their_own_topics(paddock_bin, tmp_path):
+def synth_gain_day(paddock_bin, tmp_path):
+    """The rows of a 40-s `sysid synth` run with a steering gain of 0.85 hidden."""
     synth = tmp_path / "synth.csv"
     r = run(
         paddock_bin, "sysid", "synth", "--out", str(synth), "--seconds", "40",
         "--effect", "steering_gain:gain=0.85",
     )
     assert r.returncode == 0, r.stderr
-    rows = read_csv(synth)
+    return read_csv(synth)
+
+
+def sysid_finds_the_gain(paddock_bin, bag, report, pose_topic):
+    """`paddock sysid` on the pose of `pose_topic` and the speed finds the hidden gain;
+    returns its report."""
+    r = run(
+        paddock_bin, "sysid", "--recording", str(bag), "--out", str(report), "--no-plots",
+        "--pose-topic", pose_topic, "--channels", "pose+speed",
+        "--effects", "steering_gain", "--folds", "2",
+    )
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((report / "report.json").read_text())
+    (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
+    assert gain["significant"], gain
+    assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain
+    return rep
+
+
+def test_a_cars_bag_with_pose_and_speed_on_their_own_topics(paddock_bin, tmp_path):
+    rows = synth_gain_day(paddock_bin, tmp_path)
     bag = tmp_path / "car_bag"
     write_car_mcap_bag(rows, bag)
     assert list(bag.glob("*.mcap")), list(bag.iterdir())
@@ -324,30 +345,14 @@ def test_a_cars_bag_with_pose_and_speed_on_their_own_topics(paddock_bin, tmp_pat
     # and near the truth
     assert sorted(errs)[len(errs) // 2] < 0.05, sorted(errs)[len(errs) // 2]
 
-    report = tmp_path / "sysid"
-    r = run(
-        paddock_bin, "sysid", "--recording", str(bag), "--out", str(report), "--no-plots",
-        "--pose-topic", "/mocap/pose", "--channels", "pose+speed",
-        "--effects", "steering_gain", "--folds", "2",
-    )
-    assert r.returncode == 0, r.stderr
-    rep = json.loads((report / "report.json").read_text())
+    rep = sysid_finds_the_gain(paddock_bin, bag, tmp_path / "sysid", "/mocap/pose")
     warnings = rep["recording"]["warnings"]
     assert "measured but left out (--channels pose+speed): yaw_rate" in warnings, warnings
     assert set(rep["recording"]["channels_missing"]) == {"vy", "yaw_rate"}, rep["recording"]
-    (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
-    assert gain["significant"], gain
-    assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain
 
 
 def test_a_cars_bag_with_its_pose_only_in_the_transforms(paddock_bin, tmp_path):
-    synth = tmp_path / "synth.csv"
-    r = run(
-        paddock_bin, "sysid", "synth", "--out", str(synth), "--seconds", "40",
-        "--effect", "steering_gain:gain=0.85",
-    )
-    assert r.returncode == 0, r.stderr
-    rows = read_csv(synth)
+    rows = synth_gain_day(paddock_bin, tmp_path)
     bag = tmp_path / "car_bag"
     odometry_tf, corrections = write_car_mcap_bag(rows, bag, pose_in_tf=True)
 
@@ -394,17 +399,7 @@ def test_a_cars_bag_with_its_pose_only_in_the_transforms(paddock_bin, tmp_path):
     assert 'no chain of transforms from "earth" to "base_link"' in r.stderr, r.stderr
     assert "map -> odom" in r.stderr, r.stderr
 
-    report = tmp_path / "sysid"
-    r = run(
-        paddock_bin, "sysid", "--recording", str(bag), "--out", str(report), "--no-plots",
-        "--pose-topic", "/tf", "--channels", "pose+speed",
-        "--effects", "steering_gain", "--folds", "2",
-    )
-    assert r.returncode == 0, r.stderr
-    rep = json.loads((report / "report.json").read_text())
-    (gain,) = [e for e in rep["effects"] if e["name"] == "steering_gain"]
-    assert gain["significant"], gain
-    assert gain["params"]["gain"] == pytest.approx(0.85, abs=0.03), gain
+    sysid_finds_the_gain(paddock_bin, bag, tmp_path / "sysid", "/tf")
 
 
 @pytest.mark.parametrize("storage", [StoragePlugin.SQLITE3, StoragePlugin.MCAP])
