@@ -214,8 +214,8 @@ pub struct DriveCommand {
 }
 
 /// The drive commands of `bag` on `topics.drive` (`ackermann_msgs/msg/AckermannDriveStamped`,
-/// CDR), by log time; an error names the topic, its type and what the recording holds
-/// when there are none or they are not commands.
+/// CDR), by log time, at least one; an error names the topic, its type and what the
+/// recording holds when there are none or they are not commands.
 pub fn drive_commands(
     bag: &Bag,
     path: &Path,
@@ -250,6 +250,12 @@ pub fn drive_commands(
             steer: d.drive.steering_angle as f64,
             speed: d.drive.speed as f64,
         });
+    }
+    if out.is_empty() {
+        return Err(RecordingError::format(
+            path,
+            format!("no messages on the drive topic {topic:?} were recovered"),
+        ));
     }
     out.sort_by_key(|d| d.log_time);
     Ok(out)

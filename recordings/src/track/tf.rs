@@ -242,3 +242,19 @@ mod tests {
         assert_eq!(far.at(10), None);
     }
 }
+
+#[cfg(test)]
+mod hostile {
+    use crate::cdr::from_cdr;
+    use crate::msg::TFMessage;
+
+    /// A transform list whose length says four billion, in a few bytes: an error, not an
+    /// allocation of that size.
+    #[test]
+    fn a_lying_length_is_refused() {
+        let mut data = vec![0, 1, 0, 0];
+        data.extend_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+        data.extend_from_slice(&[0; 16]);
+        assert!(from_cdr::<TFMessage>(&data).is_err());
+    }
+}
