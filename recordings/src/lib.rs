@@ -176,6 +176,17 @@ pub fn read_bag(path: &Path, topics: &[&str]) -> Result<Bag, RecordingError> {
     read_mcap(&bytes, path, topics)
 }
 
+/// `f`, or the message of its panic: for a third-party parser that may panic on damaged
+/// input, so that a damaged recording is an error, not a crash.
+fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, String> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
+        p.downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic".to_string())
+    })
+}
+
 /// Read an MCAP file's bytes; `path` names it in errors. A file that ends before its
 /// summary is read up to its last complete chunk ([`Bag::truncation`] says how much).
 pub fn read_mcap(bytes: &[u8], path: &Path, topics: &[&str]) -> Result<Bag, RecordingError> {
@@ -185,23 +196,31 @@ pub fn read_mcap(bytes: &[u8], path: &Path, topics: &[&str]) -> Result<Bag, Reco
             "not an MCAP file (no MCAP magic at the start)",
         ));
     }
-    let finalised = mcap::read::footer(bytes).is_ok();
+    let finalised = guarded(|| mcap::read::footer(bytes).is_ok()).unwrap_or(false);
     let options = if finalised {
         Default::default()
     } else {
         mcap::read::Options::IgnoreEndMagic.into()
     };
-    let stream = mcap::MessageStream::new_with_options(bytes, options)
+    let mut stream = guarded(|| mcap::MessageStream::new_with_options(bytes, options))
+        .map_err(|e| RecordingError::format(path, format!("not an MCAP file: {e}")))?
         .map_err(|e| RecordingError::format(path, format!("not an MCAP file: {e}")))?;
     let mut messages = Vec::new();
     let mut infos: BTreeMap<String, TopicInfo> = BTreeMap::new();
     let (mut read, mut first, mut last) = (0u64, u64::MAX, 0u64);
     let mut stopped = None;
-    for m in stream {
-        let m = match m {
+    // the MCAP reader's arithmetic can overflow on a damaged record (a panic where
+    // overflow is checked): that is a damaged file, read as far as it goes
+    loop {
+        let next = match guarded(|| stream.next()) {
+            Ok(None) => break,
+            Ok(Some(r)) => r.map_err(|e| e.to_string()),
+            Err(panic) => Err(format!("a damaged record ({panic})")),
+        };
+        let m = match next {
             Ok(m) => m,
             Err(e) if !finalised => {
-                stopped = Some(e.to_string());
+                stopped = Some(e);
                 break;
             }
             Err(e) => {
