@@ -113,8 +113,8 @@ fn is_bag_folder(path: &Path) -> bool {
 }
 
 /// The recordings a `--recording` names: the file itself, a rosbag2 bag folder, or a
-/// folder's recordings (CSV, MCAP and `.db3` files and bag folders, by name), in name
-/// order.
+/// folder's recordings (CSV, MCAP and `.db3` files, compressed whole or not, and bag
+/// folders, by name), in name order.
 fn recording_files(path: &Path) -> Result<Vec<PathBuf>> {
     if !path.is_dir() || is_bag_folder(path) {
         return Ok(vec![path.to_path_buf()]);
@@ -130,12 +130,17 @@ fn recording_files(path: &Path) -> Result<Vec<PathBuf>> {
                             || e.eq_ignore_ascii_case("mcap")
                             || e.eq_ignore_ascii_case("db3")
                     }))
+                // a rosbag2 storage file compressed whole
+                || p.file_name().is_some_and(|n| {
+                    let n = n.to_string_lossy().to_ascii_lowercase();
+                    n.ends_with(".mcap.zstd") || n.ends_with(".db3.zstd")
+                })
         })
         .collect();
     files.sort();
     if files.is_empty() {
         anyhow::bail!(
-            "the folder {} holds no recordings (*.csv, *.mcap, *.db3, rosbag2 bag folders)",
+            "the folder {} holds no recordings (*.csv, *.mcap, *.db3, *.mcap.zstd, *.db3.zstd, rosbag2 bag folders)",
             path.display()
         );
     }
@@ -304,8 +309,47 @@ pub fn run(args: &SysidArgs, circuits: &paddock_sim::circuit::Circuits) -> Resul
 
 #[cfg(test)]
 mod tests {
-    use super::run_names;
+    use super::{recording_files, run_names};
     use std::path::PathBuf;
+
+    #[test]
+    fn a_folder_gives_its_recordings_compressed_or_not_and_nothing_else() {
+        let dir = tempfile::tempdir().unwrap();
+        let names = [
+            "a.csv",
+            "b.MCAP",
+            "c.db3",
+            "d.mcap.zstd",
+            "e.db3.ZSTD",
+            "f.zstd",
+            "g.txt",
+        ];
+        for n in names {
+            std::fs::write(dir.path().join(n), b"x").unwrap();
+        }
+        let bag = dir.path().join("h_bag");
+        std::fs::create_dir(&bag).unwrap();
+        std::fs::write(bag.join("metadata.yaml"), b"x").unwrap();
+        std::fs::create_dir(dir.path().join("i_plain")).unwrap();
+        let got: Vec<String> = recording_files(dir.path())
+            .unwrap()
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            got,
+            [
+                "a.csv",
+                "b.MCAP",
+                "c.db3",
+                "d.mcap.zstd",
+                "e.db3.ZSTD",
+                "h_bag"
+            ]
+        );
+        let e = recording_files(&dir.path().join("i_plain")).unwrap_err();
+        assert!(e.to_string().contains("*.mcap.zstd"), "{e}");
+    }
 
     #[test]
     fn runs_of_files_with_the_same_name_in_two_folders_are_told_apart() {
